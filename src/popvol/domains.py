@@ -1,0 +1,104 @@
+"""Light-aligned propagation domains (METHOD.md step 2, RECONSTRUCTION.md 2.4).
+
+A directional light gets a rectilinear grid of cubic cells whose first axis is the light's
+direction of travel d (its principal ordinate); the other two axes u, v complete a right-handed
+frame. The grid covers the medium's world AABB (the AABB, in the (d, u, v) frame, of its 8
+corners). Slice 0 (index k = 0) faces the light.
+
+Index convention: cell (k, i, j) has its centre at
+``origin + ((k + 1/2) d + (i + 1/2) u + (j + 1/2) v) * h`` where ``origin`` is the world
+position of the domain's corner. Continuous index coordinates put cell centres at integers.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import PopvolError
+from .medium import Medium
+
+#: Working-set bytes per domain cell: sigma_t, sigma_s, g (float32) are resampled, then the
+#: solver holds Th, Dh, in-flight W and W*a, accumulated phi and phi*a, plus slack.
+BYTES_PER_DOMAIN_CELL = 4 * 10
+
+
+def light_frame(direction: np.ndarray) -> np.ndarray:
+    """float64 (3, 3), rows d, u, v: orthonormal, right-handed (v = d x u), d = direction."""
+    d = np.asarray(direction, np.float64)
+    d = d / np.linalg.norm(d)
+    helper = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(helper, d)
+    u /= np.linalg.norm(u)
+    v = np.cross(d, u)
+    return np.stack([d, u, v])
+
+
+@dataclass
+class DirectionalDomain:
+    """A rectilinear domain aligned with a directional light.
+
+    Attributes:
+        frame: float64 (3, 3), rows d, u, v (world space).
+        origin: float64 (3,), world position of the corner of cell (0, 0, 0).
+        h: cell size in world units (cells are cubes).
+        shape: (n_d, n_u, n_v) cells.
+    """
+
+    frame: np.ndarray
+    origin: np.ndarray
+    h: float
+    shape: tuple[int, int, int]
+
+    @property
+    def n_cells(self) -> int:
+        return int(np.prod(self.shape))
+
+    def world_to_index(self, x: np.ndarray) -> np.ndarray:
+        """Continuous cell index (centres at integers) of world points x (..., 3)."""
+        return (np.asarray(x) - self.origin) @ self.frame.T / self.h - 0.5
+
+    def index_to_world(self, q: np.ndarray) -> np.ndarray:
+        """World position of continuous cell index q (..., 3)."""
+        return self.origin + (np.asarray(q) + 0.5) * self.h @ self.frame
+
+
+def directional_domain(medium: Medium, direction: np.ndarray, resolution: int) -> DirectionalDomain:
+    """The domain for light travelling along ``direction`` with ``resolution`` cells along its
+    longest side; the other sides get the same cell size (rounded up to whole cells)."""
+    frame = light_frame(direction)
+    lo, hi = medium.bounds
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    local = corners @ frame.T                     # (8, 3) coordinates along d, u, v
+    lmin, lmax = local.min(axis=0), local.max(axis=0)
+    extent = lmax - lmin
+    h = float(extent.max() / resolution)
+    shape = tuple(int(max(1, np.ceil(e / h - 1e-9))) for e in extent)
+    # centre the (slightly larger) grid on the medium's box
+    pad = (np.asarray(shape) * h - extent) / 2
+    origin = (lmin - pad) @ frame
+    dom = DirectionalDomain(frame, origin, h, shape)
+    check_memory(dom.n_cells * BYTES_PER_DOMAIN_CELL, f"method.resolution = {resolution}",
+                 f"a light domain of {shape[0]}x{shape[1]}x{shape[2]} cells")
+    return dom
+
+
+def available_memory() -> int:
+    """Bytes of memory available to this process now (MemAvailable, else total physical)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(nbytes: int, field: str, what: str) -> None:
+    """Raise a PopvolError before allocating ``nbytes`` if it exceeds 80 % of available memory."""
+    avail = available_memory()
+    if nbytes > 0.8 * avail:
+        raise PopvolError(f"{field}: {what} needs about {nbytes / 2**30:.1f} GiB, but only "
+                          f"{avail / 2**30:.1f} GiB of memory is available; lower it")

@@ -1,0 +1,97 @@
+"""Trilinear lookup in voxel grids (Numba), shared by resampling and rendering.
+
+Continuous index coordinates put voxel centres at integers. A grid covers the union of its
+cells, [-1/2, n - 1/2] per axis: inside, values are trilinear between centres and clamped to
+the edge value in the outer half cell (Mitsuba's gridvolume does the same); outside, zero.
+Grids of size 1 along an axis (constants stored as (1, 1, 1)) are constant along it.
+"""
+import numba as nb
+import numpy as np
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def corner_weights(x, n):
+    """Lower index, upper index and weight of the upper one along an axis of n voxels."""
+    if x < 0.0:
+        x = 0.0
+    hi = n - 1.0
+    if x > hi:
+        x = hi
+    i0 = int(x)
+    if i0 > n - 2:
+        i0 = max(n - 2, 0)
+    f = x - i0
+    i1 = min(i0 + 1, n - 1)
+    return i0, i1, f
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def inside(x, y, z, shape):
+    return (-0.5 <= x <= shape[0] - 0.5) and (-0.5 <= y <= shape[1] - 0.5) and (-0.5 <= z <= shape[2] - 0.5)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def trilinear(grid, x, y, z):
+    """Value of ``grid`` (3-D float array) at continuous index (x, y, z); 0 outside its cells."""
+    s = grid.shape
+    if not inside(x, y, z, s):
+        return 0.0
+    return trilinear_clamped(grid, x, y, z)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def trilinear_clamped(grid, x, y, z):
+    """Like :func:`trilinear` but clamps to the edge everywhere (for constants and fields)."""
+    s = grid.shape
+    i0, i1, fx = corner_weights(x, s[0])
+    j0, j1, fy = corner_weights(y, s[1])
+    k0, k1, fz = corner_weights(z, s[2])
+    c00 = grid[i0, j0, k0] * (1 - fz) + grid[i0, j0, k1] * fz
+    c01 = grid[i0, j1, k0] * (1 - fz) + grid[i0, j1, k1] * fz
+    c10 = grid[i1, j0, k0] * (1 - fz) + grid[i1, j0, k1] * fz
+    c11 = grid[i1, j1, k0] * (1 - fz) + grid[i1, j1, k1] * fz
+    c0 = c00 * (1 - fy) + c01 * fy
+    c1 = c10 * (1 - fy) + c11 * fy
+    return c0 * (1 - fx) + c1 * fx
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def resample(grid, inv_voxel, grid_origin, frame, dom_origin, h, shape, clamp, out):
+    """Sample ``grid`` (world voxel grid) at the centres of a light domain's cells.
+
+    grid_origin: world position of voxel (0,0,0)'s centre; inv_voxel: 1/voxel size (3,).
+    frame rows d, u, v; dom_origin: world corner of the domain; out: float32 ``shape``.
+    ``clamp``: clamp to the edge outside the grid instead of returning 0.
+    """
+    for k in nb.prange(shape[0]):
+        for i in range(shape[1]):
+            for j in range(shape[2]):
+                a = (k + 0.5) * h
+                b = (i + 0.5) * h
+                c = (j + 0.5) * h
+                wx = dom_origin[0] + a * frame[0, 0] + b * frame[1, 0] + c * frame[2, 0]
+                wy = dom_origin[1] + a * frame[0, 1] + b * frame[1, 1] + c * frame[2, 1]
+                wz = dom_origin[2] + a * frame[0, 2] + b * frame[1, 2] + c * frame[2, 2]
+                x = (wx - grid_origin[0]) * inv_voxel[0]
+                y = (wy - grid_origin[1]) * inv_voxel[1]
+                z = (wz - grid_origin[2]) * inv_voxel[2]
+                if clamp:
+                    out[k, i, j] = trilinear_clamped(grid, x, y, z)
+                else:
+                    out[k, i, j] = trilinear(grid, x, y, z)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def domain_to_world(field, frame, dom_origin, h, world_origin, voxel, out):
+    """Sample a domain field (n_d, n_u, n_v) at the centres of world voxels ``out`` (nx, ny, nz)."""
+    nx, ny, nz = out.shape
+    for x in nb.prange(nx):
+        for y in range(ny):
+            for z in range(nz):
+                px = world_origin[0] + x * voxel[0] - dom_origin[0]
+                py = world_origin[1] + y * voxel[1] - dom_origin[1]
+                pz = world_origin[2] + z * voxel[2] - dom_origin[2]
+                q0 = (px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5
+                q1 = (px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5
+                q2 = (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5
+                out[x, y, z] = trilinear_clamped(field, q0, q1, q2)

@@ -1,0 +1,44 @@
+"""Light sources.
+
+A directional light (sun) is described by the direction its light *travels* (Mitsuba's
+convention: a sun high in the sky has direction close to (0, -1, 0)) and its irradiance E
+[W/m^2 per RGB channel] on a plane perpendicular to that direction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import PopvolError
+
+
+@dataclass
+class DirectionalLight:
+    """Collimated light from infinitely far away.
+
+    Attributes:
+        direction: float64 (3,), unit vector, the direction the light travels.
+        irradiance: float64 (3,), RGB irradiance, >= 0.
+        a0: anisotropy of the injected lobe about ``direction`` (1 = perfectly collimated).
+    """
+
+    direction: np.ndarray
+    irradiance: np.ndarray
+    a0: float = 1.0
+    source: str = "<light>"
+
+    def __post_init__(self):
+        d = np.asarray(self.direction, dtype=np.float64)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+            raise PopvolError(f"{self.source}: light direction must be 3 finite numbers, not all zero, got {self.direction!r}")
+        self.direction = d / np.linalg.norm(d)
+        e = np.asarray(self.irradiance, dtype=np.float64)
+        if e.ndim == 0:
+            e = np.full(3, float(e))
+        if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
+            raise PopvolError(f"{self.source}: light irradiance must be 1 or 3 finite numbers >= 0, got {self.irradiance!r}")
+        self.irradiance = e
+        if not (np.isfinite(self.a0) and 0.0 <= self.a0 <= 1.0):
+            raise PopvolError(f"{self.source}: light a0 = {self.a0!r} is outside [0, 1]")
+        self.a0 = float(self.a0)

@@ -1,0 +1,270 @@
+"""Principal-Ordinate Propagation of each light through the medium (METHOD.md steps 2-5).
+
+Data flow: medium -> light-aligned domain (resampled sigma_t, sigma_s, g) -> injection at the
+face toward the light -> propagation (Jacobi wavefront or Gauss-Seidel sweeps) -> accumulated
+fluence phi and phi*A per domain cell -> resampled onto the medium's world grid ("fields") for
+rendering.
+
+Grey media are linear in the light's energy (the anisotropy merge is energy-weighted, so it is
+independent of scale): each domain is solved once for unit irradiance and scaled by the light's
+RGB irradiance when rendering.
+"""
+from __future__ import annotations
+
+import functools
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import hg
+from .domains import DirectionalDomain, check_memory, directional_domain
+from .kernels import propagation as K
+from .kernels.sampling import domain_to_world, resample
+from .lights import DirectionalLight
+from .medium import Medium
+from .scene import Method, Scene
+
+SPLIT_TABLE_SIZE = 4097
+
+
+@functools.lru_cache(maxsize=4)
+def split_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
+    """float64 (6, n): front/side/back shares and their conditional mean cosines for a lobe
+    HG_a, sampled at a = linspace(-1, 1, n) (supplement Eq. 2, 4, 7)."""
+    a = np.linspace(-1.0, 1.0, n)
+    front, side, back = hg.split_fractions(a)
+    m_front, m_side, m_back = hg.conditional_mean_cosines(a)
+    return np.ascontiguousarray(np.stack([front, side, back, m_front, m_side, m_back]), dtype=np.float64)
+
+
+def medium_factors(sigma_t: np.ndarray, sigma_s: np.ndarray, g: np.ndarray, h: float,
+                   decay: str) -> tuple[np.ndarray, np.ndarray]:
+    """Half-step transmittance Th and anisotropy decay Dh per cell, float32 (same shape).
+
+    Th = exp(-sigma_a h / 2)  (only absorption removes energy; scattering widens the lobe).
+    Dh = g^(sigma_s h / 2)    (decay "paper", supplement Eq. 12; needs g >= 0), or
+         exp(-sigma_s h (1 - g) / 2)  (decay "poisson": E[g^n] for n ~ Poisson(sigma_s h)).
+    """
+    sigma_a = np.maximum(sigma_t - sigma_s, 0.0)
+    Th = np.exp(-0.5 * h * sigma_a)
+    x = 0.5 * h * sigma_s
+    if decay == "paper":
+        with np.errstate(divide="ignore"):
+            Dh = np.where(x > 0, np.power(np.maximum(g, 0.0), x), 1.0)
+    else:
+        Dh = np.exp(-x * (1.0 - g))
+    return Th.astype(np.float32), Dh.astype(np.float32)
+
+
+@dataclass
+class Budget:
+    """Energy budget of one domain [W, for unit irradiance]; see supplement Sec. 1.2."""
+
+    injected: float = 0.0
+    reflected: float = 0.0     # left through the face toward the light
+    transmitted: float = 0.0   # left through the far face
+    side: float = 0.0          # left through the 4 lateral faces
+    absorbed: float = 0.0
+    in_flight: float = 0.0     # still pending when the solver stopped
+
+    @property
+    def escaped(self) -> float:
+        return self.reflected + self.transmitted + self.side
+
+    @property
+    def balance_error(self) -> float:
+        """(injected - escaped - absorbed - in flight) / injected: 0 up to float rounding."""
+        return (self.injected - self.escaped - self.absorbed - self.in_flight) / max(self.injected, 1e-300)
+
+    def as_dict(self) -> dict:
+        d = {k: float(getattr(self, k)) for k in ("injected", "reflected", "transmitted", "side",
+                                                   "absorbed", "in_flight")}
+        d["escaped"] = self.escaped
+        d["balance_error"] = self.balance_error
+        return d
+
+
+@dataclass
+class PropagationResult:
+    """Accumulated fields of one domain and how the solver got there."""
+
+    phi: np.ndarray            # float32 domain shape: fluence [W/m^2]
+    phia: np.ndarray           # float32: sum of fluence * anisotropy; A = phia / phi
+    budget: Budget
+    iterations: int            # Jacobi iterations or sweeps
+    cell_updates: int          # cells visited by the solver (for throughput figures)
+    residual: float            # in-flight energy / injected energy when it stopped
+    converged: bool
+    seconds: float = 0.0
+
+
+def default_max_iterations(shape, solver: str) -> int:
+    if solver == "jacobi":
+        return 40 * int(sum(shape))
+    return 400
+
+
+def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
+              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
+              max_iterations: int = 0, periodic: bool = False, progress=None) -> PropagationResult:
+    """Propagate light injected into slice k = 0 of a domain until it has (almost) all left.
+
+    Args:
+        Th, Dh: float32 (n_d, n_u, n_v) half-step factors from :func:`medium_factors`.
+        injection: (n_u, n_v) power [W] entering each cell of slice 0 (E * h^2 for a sun).
+            The light travels half a cell to the first centre, so it is attenuated by Th[0].
+        a0: anisotropy of the injected lobe (1 = collimated).
+        h: cell size; fluence accumulates W / h^2 per visit.
+        rule: "moment" or "paper"; solver: "sweep" or "jacobi".
+        tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
+            (0 = automatic).
+        periodic: wrap the lateral faces (an infinite slab); used by the slab tests.
+        progress: optional callable(iteration, residual).
+    """
+    Th = np.ascontiguousarray(Th, np.float32)
+    Dh = np.ascontiguousarray(Dh, np.float32)
+    shape = Th.shape
+    moment = rule == "moment"
+    table = split_table()
+    inv_area = 1.0 / (h * h)
+    cap = max_iterations or default_max_iterations(shape, solver)
+
+    W = np.zeros(shape, np.float32)
+    W[0] = injection * Th[0]
+    Wa = W * np.float32(a0)
+    phi = np.zeros(shape, np.float32)
+    phia = np.zeros(shape, np.float32)
+    budget = Budget(injected=float(np.sum(injection, dtype=np.float64)))
+    budget.absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+    tally = np.zeros(4)
+    in_flight = float(np.sum(W, dtype=np.float64))
+    target = tolerance * budget.injected
+    t0 = time.perf_counter()
+    it = 0
+    if solver == "jacobi":
+        W2, Wa2 = np.empty_like(W), np.empty_like(Wa)
+        while in_flight > target and it < cap:
+            K.boundary_escape(W, Wa, Th, table, moment, periodic, tally)
+            in_flight, absorbed = K.jacobi_step(W, Wa, Th, Dh, table, moment, periodic, inv_area,
+                                                W2, Wa2, phi, phia)
+            tally[K.ABSORBED] += absorbed
+            W, W2, Wa, Wa2 = W2, W, Wa2, Wa
+            it += 1
+            if progress is not None and it % 16 == 0:
+                progress(it, in_flight / budget.injected)
+    else:
+        S = np.zeros(shape[1:], np.float32)
+        Sa = np.zeros(shape[1:], np.float32)
+        while in_flight > target and it < cap:
+            in_flight = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, inv_area,
+                                phi, phia, S, Sa, tally)
+            it += 1
+            if progress is not None:
+                progress(it, in_flight / budget.injected)
+    seconds = time.perf_counter() - t0
+    budget.reflected, budget.transmitted, budget.side = (float(x) for x in tally[:3])
+    budget.absorbed += float(tally[K.ABSORBED])
+    budget.in_flight = in_flight
+    residual = in_flight / max(budget.injected, 1e-300)
+    return PropagationResult(phi, phia, budget, it, it * int(np.prod(shape)), residual,
+                             in_flight <= target, seconds)
+
+
+# ---------------------------------------------------------------------------------------------
+# Whole scenes
+# ---------------------------------------------------------------------------------------------
+
+@dataclass
+class DomainSolution:
+    light: DirectionalLight
+    domain: DirectionalDomain
+    result: PropagationResult
+    seconds_resample: float
+
+
+@dataclass
+class Solution:
+    """Everything rendering needs: per-light fields on the medium's world grid.
+
+    phi, phia: float32 (n_lights, n_channels, nx, ny, nz), per unit irradiance (grey media:
+    n_channels = 1; the renderer multiplies by each light's RGB irradiance).
+    """
+
+    medium: Medium
+    domains: list[DomainSolution]
+    phi: np.ndarray
+    phia: np.ndarray
+    directions: np.ndarray     # float64 (n_lights, 3), direction each light travels
+    irradiance: np.ndarray     # float64 (n_lights, 3)
+    seconds: dict = field(default_factory=dict)
+
+    def stats(self) -> dict:
+        out = {"seconds": dict(self.seconds), "domains": []}
+        for i, ds in enumerate(self.domains):
+            r = ds.result
+            out["domains"].append({
+                "light": i, "type": "directional", "shape": list(ds.domain.shape),
+                "cell_size": ds.domain.h, "iterations": r.iterations, "residual": r.residual,
+                "converged": r.converged, "cell_updates": r.cell_updates,
+                "seconds_resample": ds.seconds_resample, "seconds_propagate": r.seconds,
+                "budget_per_unit_irradiance": r.budget.as_dict()})
+        return out
+
+
+def resample_medium(medium: Medium, domain: DirectionalDomain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """sigma_t, sigma_s, g at the domain's cell centres, float32 (n_d, n_u, n_v) each."""
+    inv_voxel = 1.0 / medium.voxel_size
+    out = np.empty(domain.shape, np.float32)
+    resample(medium.density, inv_voxel, medium.origin, domain.frame, domain.origin, domain.h,
+             domain.shape, False, out)
+    sigma_t = out * np.float32(medium.scale)
+    sigma_s = sigma_t * np.float32(medium.albedo)
+    g = np.full(domain.shape, medium.g, np.float32)
+    return sigma_t, sigma_s, g
+
+
+def solve_light(medium: Medium, light: DirectionalLight, method: Method, progress=None) -> DomainSolution:
+    """Build the light's domain, resample the medium into it and propagate unit irradiance."""
+    if method.decay == "paper" and medium.g < 0:
+        from .errors import PopvolError
+        raise PopvolError(f"{medium.source}: method.decay = 'paper' (g^(sigma_s s), supplement "
+                          f"Eq. 12) needs g >= 0, got g = {medium.g}; use decay = 'poisson'")
+    t0 = time.perf_counter()
+    dom = directional_domain(medium, light.direction, method.resolution)
+    sigma_t, sigma_s, g = resample_medium(medium, dom)
+    Th, Dh = medium_factors(sigma_t, sigma_s, g, dom.h, method.decay)
+    del sigma_t, sigma_s, g
+    t1 = time.perf_counter()
+    injection = np.full(dom.shape[1:], dom.h * dom.h, np.float32)   # unit irradiance * area
+    res = propagate(Th, Dh, injection, light.a0, dom.h, method.rule, method.solver,
+                    method.tolerance, method.max_iterations, progress=progress)
+    return DomainSolution(light, dom, res, t1 - t0)
+
+
+def solve(scene: Scene, progress=None) -> Solution:
+    """Propagate every light of ``scene``; returns the fields the renderer needs."""
+    med = scene.medium
+    n = len(scene.lights)
+    check_memory(2 * n * med.density.size * 4, "medium", f"fields of {n} light(s) on a "
+                 f"{'x'.join(map(str, med.shape))} grid")
+    phi = np.empty((n, 1) + med.shape, np.float32)
+    phia = np.empty_like(phi)
+    sols = []
+    t_res = t_prop = t_fields = 0.0
+    for i, light in enumerate(scene.lights):
+        cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
+        ds = solve_light(med, light, scene.method, cb)
+        t0 = time.perf_counter()
+        d = ds.domain
+        domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, 0])
+        domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, 0])
+        t_fields += time.perf_counter() - t0
+        t_res += ds.seconds_resample
+        t_prop += ds.result.seconds
+        sols.append(ds)
+    dirs = np.array([l.direction for l in scene.lights])
+    irr = np.array([l.irradiance for l in scene.lights])
+    return Solution(med, sols, phi, phia, dirs, irr,
+                    {"resample": t_res, "propagate": t_prop, "fields": t_fields})

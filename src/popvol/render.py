@@ -1,0 +1,48 @@
+"""Render an image of a solved scene by ray marching (see kernels/render.py for the equations)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .errors import PopvolError
+from .kernels.render import render_kernel
+from .propagate import Solution, solve
+from .scene import Scene
+
+
+def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) -> np.ndarray:
+    """Linear HDR image float32 (height, width, 3) of ``scene``.
+
+    ``solution`` is the output of :func:`popvol.solve`; if omitted the scene is solved first.
+    Moving only the camera does not need a new solution.
+    """
+    if solution is None:
+        solution = solve(scene)
+    med = scene.medium
+    cam = scene.camera
+    m = scene.method
+    lo, hi = med.bounds
+    step = float(m.step * med.voxel_size.min())
+    out = np.zeros((cam.height, cam.width, 3), np.float32)
+    render_kernel(med.density, float(med.scale), med.albedo_grid(), med.g_grid(), med.origin,
+                  med.voxel_size, lo, hi, solution.phi, solution.phia,
+                  np.ascontiguousarray(solution.directions, np.float64),
+                  np.ascontiguousarray(solution.irradiance, np.float64),
+                  np.asarray(scene.background, np.float64), cam.origin, cam.basis(),
+                  float(np.tan(np.radians(cam.fov) / 2)), cam.width, cam.height, step, m.spp,
+                  m.seed, jitter, out)
+    if not np.all(np.isfinite(out)):
+        raise PopvolError("internal error: the rendered image has non-finite pixels; please report it "
+                          f"with the scene ({scene.source})")
+    return out
+
+
+def render_timed(scene: Scene) -> tuple[np.ndarray, Solution, dict]:
+    """Solve and render; returns (image, solution, seconds per stage)."""
+    solution = solve(scene)
+    t0 = time.perf_counter()
+    img = render(scene, solution)
+    seconds = dict(solution.seconds)
+    seconds["render"] = time.perf_counter() - t0
+    return img, solution, seconds
