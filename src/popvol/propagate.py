@@ -31,12 +31,14 @@ SPLIT_TABLE_SIZE = 4097
 
 @functools.lru_cache(maxsize=4)
 def split_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
-    """float64 (6, n): front/side/back shares and their conditional mean cosines for a lobe
-    HG_a, sampled at a = linspace(-1, 1, n) (supplement Eq. 2, 4, 7)."""
+    """float64 (n, 8): front/side/back shares and their conditional mean cosines for a lobe
+    HG_a, sampled at a = linspace(-1, 1, n) (supplement Eq. 2, 4, 7); columns 6, 7 are padding
+    so that one row is 64 bytes (the kernels read two neighbouring rows per lookup)."""
     a = np.linspace(-1.0, 1.0, n)
-    front, side, back = hg.split_fractions(a)
-    m_front, m_side, m_back = hg.conditional_mean_cosines(a)
-    return np.ascontiguousarray(np.stack([front, side, back, m_front, m_side, m_back]), dtype=np.float64)
+    table = np.zeros((n, 8))
+    table[:, 0], table[:, 1], table[:, 2] = hg.split_fractions(a)
+    table[:, 3], table[:, 4], table[:, 5] = hg.conditional_mean_cosines(a)
+    return table
 
 
 def medium_factors(sigma_t: np.ndarray, sigma_s: np.ndarray, g: np.ndarray, h: float,
@@ -144,13 +146,10 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
     t0 = time.perf_counter()
     it = 0
     if solver == "jacobi":
-        W2, Wa2 = np.empty_like(W), np.empty_like(Wa)
+        parts = np.empty((6,) + shape, np.float32)
         while in_flight > target and it < cap:
-            K.boundary_escape(W, Wa, Th, table, moment, periodic, tally)
-            in_flight, absorbed = K.jacobi_step(W, Wa, Th, Dh, table, moment, periodic, inv_area,
-                                                W2, Wa2, phi, phia)
-            tally[K.ABSORBED] += absorbed
-            W, W2, Wa, Wa2 = W2, W, Wa2, Wa
+            K.jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, parts, tally)
+            in_flight = K.jacobi_gather(parts, Th, Dh, periodic, W, Wa, tally)
             it += 1
             if progress is not None and it % 16 == 0:
                 progress(it, in_flight / budget.injected)

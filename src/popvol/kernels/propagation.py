@@ -10,50 +10,46 @@ Per-cell medium factors, precomputed (see propagate.py):
        exp(-sigma_a s) with sigma_a averaged over the two cells (supplement Sec. 1.3);
   Dh = half-step anisotropy decay: g^(sigma_s h / 2) (`paper`, Eq. 12) or
        exp(-sigma_s h (1 - g) / 2) (`poisson`); the decay src->dst is Dh[src] Dh[dst].
-Split table (see hg.split_fractions / conditional_mean_cosines), rows:
-  0 front, 1 each side, 2 back share of HG_a;  3, 4, 5 their conditional mean cosines;
-  sampled at a = -1 .. 1 (linear interpolation).
+Split table (float64 (n, 8), see propagate.split_table), columns:
+  0 front share, 1 share of EACH side, 2 back share of HG_a; 3, 4, 5 their conditional mean
+  cosines; sampled at a = linspace(-1, 1, n), interpolated linearly. The kernels take the back
+  share as 1 - front - 4 side, so the six shares sum to 1 to rounding (supplement Eq. 8).
 Outgoing anisotropy: rule `moment` -> the part's conditional mean cosine times the decay;
 rule `paper` -> every part keeps a times the decay.
 
+Each transfer is split in two halves: the sender applies its own Th (and Dh) when it sends, the
+receiver its own when it gathers. What leaves the domain crosses only the sender's half cell.
 Budget tallies (float64 (4,)): [reflected (out through the face k = 0, toward the light),
 transmitted (out through k = n_d - 1), side (out through the 4 lateral faces), absorbed].
 """
 import numba as nb
 import numpy as np
 
-FRONT, SIDE, BACK = 0, 1, 2
 REFLECTED, TRANSMITTED, SIDE_ESCAPED, ABSORBED = 0, 1, 2, 3
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def lookup(table, row, a):
-    """Linear interpolation of ``table[row]`` sampled uniformly on a in [-1, 1]."""
-    n = table.shape[1]
-    x = (a + 1.0) * 0.5 * (n - 1)
-    if x < 0.0:
-        x = 0.0
-    if x > n - 1.0:
-        x = n - 1.0
-    i0 = int(x)
-    if i0 > n - 2:
-        i0 = n - 2
-    f = x - i0
-    return table[row, i0] + f * (table[row, i0 + 1] - table[row, i0])
+def split(table, w, wa, moment):
+    """Split packet (w, w*a) into its parts (supplement Eq. 4, 7).
 
-
-@nb.njit(inline="always", fastmath=True, cache=True)
-def part(table, w, wa, part_id, moment):
-    """Share of packet (w, w*a) sent into one neighbour of kind ``part_id``.
-
-    Returns (energy, energy * outgoing anisotropy) before transmittance and decay.
+    Returns (front, front*a', side, side*a', back, back*a'): ``side`` is the share of ONE
+    lateral neighbour, a' each part's outgoing anisotropy before decay.
     """
     a = wa / w
-    frac = lookup(table, part_id, a)
-    e = w * frac
+    n = table.shape[0]
+    x = (a + 1.0) * 0.5 * (n - 1)
+    x = min(max(x, 0.0), n - 1.0)
+    i0 = min(int(x), n - 2)
+    f = x - i0
+    ef = w * (table[i0, 0] + f * (table[i0 + 1, 0] - table[i0, 0]))
+    es = w * (table[i0, 1] + f * (table[i0 + 1, 1] - table[i0, 1]))
+    eb = w - ef - 4.0 * es
     if moment:
-        return e, e * lookup(table, 3 + part_id, a)
-    return e, e * a
+        mf = table[i0, 3] + f * (table[i0 + 1, 3] - table[i0, 3])
+        ms = table[i0, 4] + f * (table[i0 + 1, 4] - table[i0, 4])
+        mb = table[i0, 5] + f * (table[i0 + 1, 5] - table[i0, 5])
+        return ef, ef * mf, es, es * ms, eb, eb * mb
+    return ef, ef * a, es, es * a, eb, eb * a
 
 
 @nb.njit(inline="always", cache=True)
@@ -65,112 +61,106 @@ def _wrap(i, n):
     return i
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
-def jacobi_step(W, Wa, Th, Dh, table, moment, periodic, inv_area, W_out, Wa_out, phi, phia):
-    """One wavefront iteration: accumulate the current wave, then gather the next one.
+# ---------------------------------------------------------------------------------------------
+# Jacobi wavefront: every iteration moves every packet by exactly one cell.
+# ---------------------------------------------------------------------------------------------
 
-    Every destination cell gathers from its 6 face neighbours (supplement Eq. 9), so the loop
-    is race-free. Returns (energy now in flight, energy absorbed in interior transfers).
-    Escapes through the boundary are counted by :func:`boundary_escape` on the same wave.
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out, tally):
+    """Accumulate the current wave into (phi, phia) and split every packet.
+
+    ``out`` float32 (6, n_d, n_u, n_v) receives the parts after the sender's half step:
+    0 front, 1 front*a', 2 side (each), 3 side*a', 4 back, 5 back*a'. Parts that leave the
+    domain are tallied; so is what the sender's half step absorbs.
     """
     n0, n1, n2 = W.shape
+    refl = 0.0
+    trans = 0.0
+    side_out = 0.0
+    absorbed = 0.0
+    for kk in nb.prange(n0):
+        k = np.int64(kk)   # prange indices are unsigned; keep k - 1 an integer
+        for i in range(n1):
+            for j in range(n2):
+                w = W[k, i, j]
+                if w <= 0.0:
+                    for p in range(6):
+                        out[p, k, i, j] = 0.0
+                    continue
+                wa = Wa[k, i, j]
+                phi[k, i, j] += w * inv_area
+                phia[k, i, j] += wa * inv_area
+                ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
+                th = Th[k, i, j]
+                thd = th * Dh[k, i, j]
+                absorbed += w * (1.0 - th)
+                out[0, k, i, j] = ef * th
+                out[1, k, i, j] = efa * thd
+                out[2, k, i, j] = es * th
+                out[3, k, i, j] = esa * thd
+                out[4, k, i, j] = eb * th
+                out[5, k, i, j] = eba * thd
+                if k == n0 - 1:
+                    trans += ef * th
+                if k == 0:
+                    refl += eb * th
+                if not periodic:
+                    missing = (i == 0) + (i == n1 - 1) + (j == 0) + (j == n2 - 1)
+                    side_out += missing * es * th
+    tally[REFLECTED] += refl
+    tally[TRANSMITTED] += trans
+    tally[SIDE_ESCAPED] += side_out
+    tally[ABSORBED] += absorbed
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def jacobi_gather(parts, Th, Dh, periodic, W_out, Wa_out, tally):
+    """Every cell gathers the parts its 6 neighbours sent toward it (supplement Eq. 9) and
+    applies its own half step. Race-free (each cell writes only itself). Returns the energy
+    now in flight."""
+    _, n0, n1, n2 = parts.shape
     in_flight = 0.0
     absorbed = 0.0
     for kk in nb.prange(n0):
-        k = np.int64(kk)   # prange indices are unsigned; k - 1 must stay an integer
+        k = np.int64(kk)
         for i in range(n1):
             for j in range(n2):
-                w = W[k, i, j]
-                if w > 0.0:
-                    phi[k, i, j] += w * inv_area
-                    phia[k, i, j] += Wa[k, i, j] * inv_area
-                thc = Th[k, i, j]
-                dhc = Dh[k, i, j]
-                e_sum = 0.0
-                ea_sum = 0.0
-                for nbr in range(6):
-                    ks, is_, js = k, i, j
-                    pid = SIDE
-                    if nbr == 0:
-                        ks = k - 1      # the cell behind sends its front part
-                        pid = FRONT
-                    elif nbr == 1:
-                        ks = k + 1      # the cell in front sends its back part
-                        pid = BACK
-                    elif nbr == 2:
-                        is_ = i - 1
-                    elif nbr == 3:
-                        is_ = i + 1
-                    elif nbr == 4:
-                        js = j - 1
-                    else:
-                        js = j + 1
-                    if ks < 0 or ks >= n0:
-                        continue
+                e = 0.0
+                ea = 0.0
+                if k > 0:                       # the cell behind sends its front part
+                    e += parts[0, k - 1, i, j]
+                    ea += parts[1, k - 1, i, j]
+                if k < n0 - 1:                  # the cell ahead sends its back part
+                    e += parts[4, k + 1, i, j]
+                    ea += parts[5, k + 1, i, j]
+                for nbr in range(4):            # lateral neighbours send side parts
+                    ii = i + (nbr == 0) - (nbr == 1)
+                    jj = j + (nbr == 2) - (nbr == 3)
                     if periodic:
-                        is_ = _wrap(is_, n1)
-                        js = _wrap(js, n2)
-                    elif is_ < 0 or is_ >= n1 or js < 0 or js >= n2:
+                        ii = _wrap(ii, n1)
+                        jj = _wrap(jj, n2)
+                    elif ii < 0 or ii >= n1 or jj < 0 or jj >= n2:
                         continue
-                    w_src = W[ks, is_, js]
-                    if w_src <= 0.0:
-                        continue
-                    e, ea = part(table, w_src, Wa[ks, is_, js], pid, moment)
-                    t = Th[ks, is_, js] * thc
-                    e_sum += e * t
-                    ea_sum += ea * t * Dh[ks, is_, js] * dhc
-                    absorbed += e * (1.0 - t)
-                W_out[k, i, j] = e_sum
-                Wa_out[k, i, j] = ea_sum
-                in_flight += e_sum
-    return in_flight, absorbed
+                    e += parts[2, k, ii, jj]
+                    ea += parts[3, k, ii, jj]
+                th = Th[k, i, j]
+                W_out[k, i, j] = e * th
+                Wa_out[k, i, j] = ea * th * Dh[k, i, j]
+                absorbed += e * (1.0 - th)
+                in_flight += e * th
+    tally[ABSORBED] += absorbed
+    return in_flight
 
 
-@nb.njit(fastmath=True, cache=True)
-def boundary_escape(W, Wa, Th, table, moment, periodic, tally):
-    """Add to ``tally`` what the wave (W, Wa) sends out of the domain, and what is absorbed on
-    the last half cell before the boundary (T = Th of the boundary cell)."""
-    n0, n1, n2 = W.shape
-    for face in range(2):                       # k = 0 (back part) and k = n0 - 1 (front part)
-        k = 0 if face == 0 else n0 - 1
-        pid = BACK if face == 0 else FRONT
-        slot = REFLECTED if face == 0 else TRANSMITTED
-        for i in range(n1):
-            for j in range(n2):
-                w = W[k, i, j]
-                if w > 0.0:
-                    e, ea = part(table, w, Wa[k, i, j], pid, moment)
-                    tally[slot] += e * Th[k, i, j]
-                    tally[ABSORBED] += e * (1.0 - Th[k, i, j])
-    if periodic:
-        return
-    for k in range(n0):
-        for i in range(n1):
-            if i == 0 or i == n1 - 1:
-                for j in range(n2):
-                    _escape_sideways(W, Wa, Th, table, moment, k, i, j, tally)
-            else:   # interior rows touch the lateral boundary only at j = 0 and j = n2 - 1
-                _escape_sideways(W, Wa, Th, table, moment, k, i, 0, tally)
-                if n2 > 1:
-                    _escape_sideways(W, Wa, Th, table, moment, k, i, n2 - 1, tally)
-
-
-@nb.njit(inline="always", fastmath=True, cache=True)
-def _escape_sideways(W, Wa, Th, table, moment, k, i, j, tally):
-    n0, n1, n2 = W.shape
-    missing = (i == 0) + (i == n1 - 1) + (j == 0) + (j == n2 - 1)
-    w = W[k, i, j]
-    if w > 0.0 and missing > 0:
-        e, ea = part(table, w, Wa[k, i, j], SIDE, moment)
-        tally[SIDE_ESCAPED] += missing * e * Th[k, i, j]
-        tally[ABSORBED] += missing * e * (1.0 - Th[k, i, j])
-
+# ---------------------------------------------------------------------------------------------
+# Gauss-Seidel sweeps: slice by slice along +d or -d.
+# ---------------------------------------------------------------------------------------------
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def _send_slice(R, Ra, Th, Dh, table, moment, periodic, k, inv_area, phi, phia, S, Sa):
+def _send_slice(R, Ra, Th, Dh, table, moment, periodic, k, inv_area, phi, phia, S, Sa, tally):
     """Sweep pass 1 on slice k: every cell sends its pending packet. Front and back parts go
-    straight into slices k +- 1 (one writer per cell: race-free); side parts are parked in
-    (S, Sa) for pass 2. Returns (reflected, transmitted, side escaped, absorbed)."""
+    straight into slices k +- 1 (one writer per cell: race-free); side parts, after the
+    sender's half step, are parked in (S, Sa) for pass 2."""
     n0, n1, n2 = R.shape
     refl = 0.0
     trans = 0.0
@@ -189,78 +179,62 @@ def _send_slice(R, Ra, Th, Dh, table, moment, periodic, k, inv_area, phi, phia, 
             Ra[k, i, j] = 0.0
             phi[k, i, j] += w * inv_area
             phia[k, i, j] += wa * inv_area
-            thc = Th[k, i, j]
-            dhc = Dh[k, i, j]
-            # front part -> k + 1
-            e, ea = part(table, w, wa, FRONT, moment)
-            if k + 1 < n0:
-                t = thc * Th[k + 1, i, j]
-                R[k + 1, i, j] += e * t
-                Ra[k + 1, i, j] += ea * t * dhc * Dh[k + 1, i, j]
-                absorbed += e * (1.0 - t)
+            ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
+            th = Th[k, i, j]
+            thd = th * Dh[k, i, j]
+            absorbed += w * (1.0 - th)
+            if k + 1 < n0:                      # front part -> slice k + 1
+                t = Th[k + 1, i, j]
+                R[k + 1, i, j] += ef * th * t
+                Ra[k + 1, i, j] += efa * thd * t * Dh[k + 1, i, j]
+                absorbed += ef * th * (1.0 - t)
             else:
-                trans += e * thc
-                absorbed += e * (1.0 - thc)
-            # back part -> k - 1
-            e, ea = part(table, w, wa, BACK, moment)
-            if k > 0:
-                t = thc * Th[k - 1, i, j]
-                R[k - 1, i, j] += e * t
-                Ra[k - 1, i, j] += ea * t * dhc * Dh[k - 1, i, j]
-                absorbed += e * (1.0 - t)
+                trans += ef * th
+            if k > 0:                           # back part -> slice k - 1
+                t = Th[k - 1, i, j]
+                R[k - 1, i, j] += eb * th * t
+                Ra[k - 1, i, j] += eba * thd * t * Dh[k - 1, i, j]
+                absorbed += eb * th * (1.0 - t)
             else:
-                refl += e * thc
-                absorbed += e * (1.0 - thc)
-            # side parts (one per lateral neighbour)
-            e, ea = part(table, w, wa, SIDE, moment)
-            S[i, j] = e
-            Sa[i, j] = ea
+                refl += eb * th
+            S[i, j] = es * th
+            Sa[i, j] = esa * thd
             if not periodic:
                 missing = (i == 0) + (i == n1 - 1) + (j == 0) + (j == n2 - 1)
-                side_out += missing * e * thc
-                absorbed += missing * e * (1.0 - thc)
-    return refl, trans, side_out, absorbed
+                side_out += missing * es * th
+    tally[REFLECTED] += refl
+    tally[TRANSMITTED] += trans
+    tally[SIDE_ESCAPED] += side_out
+    tally[ABSORBED] += absorbed
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def _gather_sides(R, Ra, Th, Dh, periodic, k, S, Sa):
+def _gather_sides(R, Ra, Th, Dh, periodic, k, S, Sa, tally):
     """Sweep pass 2 on slice k: every cell gathers the side parts its 4 lateral neighbours
-    parked in pass 1. They stay pending in slice k until its next visit. Returns absorbed."""
+    parked in pass 1. They stay pending in slice k until its next visit."""
     n0, n1, n2 = R.shape
     absorbed = 0.0
     for ii in nb.prange(n1):
         i = np.int64(ii)
         for j in range(n2):
-            thc = Th[k, i, j]
-            dhc = Dh[k, i, j]
-            e_sum = 0.0
-            ea_sum = 0.0
+            e = 0.0
+            ea = 0.0
             for nbr in range(4):
-                is_, js = i, j
-                if nbr == 0:
-                    is_ = i - 1
-                elif nbr == 1:
-                    is_ = i + 1
-                elif nbr == 2:
-                    js = j - 1
-                else:
-                    js = j + 1
+                is_ = i + (nbr == 0) - (nbr == 1)
+                js = j + (nbr == 2) - (nbr == 3)
                 if periodic:
                     is_ = _wrap(is_, n1)
                     js = _wrap(js, n2)
                 elif is_ < 0 or is_ >= n1 or js < 0 or js >= n2:
                     continue
-                s = S[is_, js]
-                if s <= 0.0:
-                    continue
-                t = Th[k, is_, js] * thc
-                e_sum += s * t
-                ea_sum += Sa[is_, js] * t * Dh[k, is_, js] * dhc
-                absorbed += s * (1.0 - t)
-            if e_sum > 0.0:
-                R[k, i, j] += e_sum
-                Ra[k, i, j] += ea_sum
-    return absorbed
+                e += S[is_, js]
+                ea += Sa[is_, js]
+            if e > 0.0:
+                th = Th[k, i, j]
+                R[k, i, j] += e * th
+                Ra[k, i, j] += ea * th * Dh[k, i, j]
+                absorbed += e * (1.0 - th)
+    tally[ABSORBED] += absorbed
 
 
 @nb.njit(fastmath=True, cache=True)
@@ -275,13 +249,8 @@ def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, inv_area, phi, phia, 
     n0 = R.shape[0]
     for step in range(n0):
         k = step if forward else n0 - 1 - step
-        refl, trans, side_out, absorbed = _send_slice(R, Ra, Th, Dh, table, moment, periodic, k,
-                                                      inv_area, phi, phia, S, Sa)
-        absorbed += _gather_sides(R, Ra, Th, Dh, periodic, k, S, Sa)
-        tally[REFLECTED] += refl
-        tally[TRANSMITTED] += trans
-        tally[SIDE_ESCAPED] += side_out
-        tally[ABSORBED] += absorbed
+        _send_slice(R, Ra, Th, Dh, table, moment, periodic, k, inv_area, phi, phia, S, Sa, tally)
+        _gather_sides(R, Ra, Th, Dh, periodic, k, S, Sa, tally)
     return total_energy(R)
 
 

@@ -27,16 +27,25 @@ def f_hg(mu, g):
 
 
 @nb.njit(inline="always", cache=True)
+def _mix(h):
+    """splitmix64 finaliser: a bijective scramble of a 64-bit integer."""
+    h ^= h >> np.uint64(30)
+    h *= np.uint64(0xBF58476D1CE4E5B9)
+    h ^= h >> np.uint64(27)
+    h *= np.uint64(0x94D049BB133111EB)
+    h ^= h >> np.uint64(31)
+    return h
+
+
+@nb.njit(inline="always", cache=True)
 def hash_uniform(seed, x, y, s, dim):
-    """A uniform number in [0, 1) from integer coordinates (splitmix64-style hash)."""
-    h = np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15)
-    for v in (x, y, s, dim):
-        h ^= np.uint64(v) + np.uint64(0x9E3779B97F4A7C15) + (h << np.uint64(6)) + (h >> np.uint64(2))
-        h ^= h >> np.uint64(30)
-        h *= np.uint64(0xBF58476D1CE4E5B9)
-        h ^= h >> np.uint64(27)
-        h *= np.uint64(0x94D049BB133111EB)
-        h ^= h >> np.uint64(31)
+    """A uniform number in [0, 1) from integer coordinates (seed, pixel x, y, sample, dimension)."""
+    golden = np.uint64(0x9E3779B97F4A7C15)
+    h = _mix(np.uint64(seed) + golden)
+    h = _mix(h ^ (np.uint64(x) + golden))
+    h = _mix(h ^ (np.uint64(y) + golden))
+    h = _mix(h ^ (np.uint64(s) + golden))
+    h = _mix(h ^ (np.uint64(dim) + golden))
     return (h >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 

@@ -1,0 +1,117 @@
+"""``popvol bench``: throughput figures, measured in one run so their ratios are meaningful.
+
+- propagation: cell updates per second of each solver on the demo cloud's light domain at
+  64^3 and 128^3 (a fixed number of iterations, after a warm-up that compiles the kernels),
+  and the same for a streaming kernel with the sweep's memory traffic but no arithmetic: the
+  ratio sweep / stream says how close the solver is to this machine's memory bandwidth;
+- render: camera samples (pixels x spp) per second at 640x360;
+- end to end: the demo scene (load, propagate, render) and, if ../shared data is present, the
+  WDAS cloud lit by the sun (examples/wdas_sun.toml).
+"""
+from __future__ import annotations
+
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numba as nb
+import numpy as np
+
+from .domains import directional_domain
+from .propagate import medium_factors, propagate, resample_medium, solve
+from .render import render
+from .scene import load_scene
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def _stream(R, Ra, Th, Dh, phi, phia):
+    """Same loads and stores per cell as a forward sweep, no physics: the bandwidth bound."""
+    n0, n1, n2 = R.shape
+    for k in range(n0 - 1):
+        for i in nb.prange(n1):
+            for j in range(n2):
+                w = R[k, i, j]
+                phi[k, i, j] += w
+                phia[k, i, j] += Ra[k, i, j]
+                t = Th[k, i, j] * Th[k + 1, i, j]
+                R[k + 1, i, j] += 0.5 * w * t
+                Ra[k + 1, i, j] += 0.5 * w * t * Dh[k, i, j] * Dh[k + 1, i, j]
+
+
+def _time(fn, repeat):
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def bench_propagation(resolution: int, repeat: int) -> dict:
+    scene = load_scene()
+    light = scene.lights[0]
+    dom = directional_domain(scene.medium, light.direction, resolution)
+    sigma_t, sigma_s, g = resample_medium(scene.medium, dom)
+    Th, Dh = medium_factors(sigma_t, sigma_s, g, dom.h, scene.method.decay)
+    inj = np.full(dom.shape[1:], dom.h ** 2, np.float32)
+    out = {"resolution": resolution, "shape": list(dom.shape), "cells": dom.n_cells}
+    for solver, iters in (("sweep", 8), ("jacobi", 8)):
+        run = lambda: propagate(Th, Dh, inj, 1.0, dom.h, solver=solver, tolerance=1e-30, max_iterations=iters)
+        propagate(Th, Dh, inj, 1.0, dom.h, solver=solver, tolerance=1e-30, max_iterations=2)  # compile
+        t = _time(run, repeat)
+        out[f"{solver}_cell_updates_per_s"] = iters * dom.n_cells / t
+    R = np.random.default_rng(0).random(dom.shape, dtype=np.float32)
+    arrays = (R, R * 0.5, Th, Dh, np.zeros_like(R), np.zeros_like(R))
+    _stream(*arrays)
+    t = _time(lambda: _stream(*arrays), repeat)
+    out["stream_cells_per_s"] = dom.n_cells / t
+    out["sweep_over_stream"] = out["sweep_cell_updates_per_s"] / out["stream_cells_per_s"]
+    out["sweep_over_jacobi"] = out["sweep_cell_updates_per_s"] / out["jacobi_cell_updates_per_s"]
+    return out
+
+
+def bench_scene(scene_path, repeat: int, width=640, height=360) -> dict:
+    scene = load_scene(scene_path, width=width, height=height)
+    solution = solve(scene)                     # warm-up (compilation, caches)
+    render(scene, solution)
+    t_solve = []
+    t_render = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        solution = solve(scene)
+        t1 = time.perf_counter()
+        render(scene, solution)
+        t_solve.append(t1 - t0)
+        t_render.append(time.perf_counter() - t1)
+    d = solution.domains[0]
+    return {"scene": str(scene_path or "<demo>"), "domain_shape": list(d.domain.shape),
+            "iterations": d.result.iterations, "residual": d.result.residual,
+            "solve_s": statistics.median(t_solve), "render_s": statistics.median(t_render),
+            "total_s": statistics.median(np.add(t_solve, t_render)),
+            "camera_samples_per_s": width * height * scene.method.spp / statistics.median(t_render)}
+
+
+def run_benchmarks(quick: bool = False, echo=print) -> dict:
+    repeat = 1 if quick else 3
+    res = {"machine": {"cpus": os.cpu_count(), "numba_threads": nb.get_num_threads(),
+                       "python": platform.python_version(), "numpy": np.__version__,
+                       "numba": nb.__version__}}
+    res["propagation"] = []
+    for n in ((32,) if quick else (64, 128)):
+        echo(f"propagation throughput at {n}^3 ...")
+        res["propagation"].append(bench_propagation(n, repeat))
+    echo("demo scene end to end ...")
+    res["demo"] = bench_scene(None, repeat, *((160, 90) if quick else (640, 360)))
+    wdas = EXAMPLES / "wdas_sun.toml"
+    data = EXAMPLES.parent.parent / "shared" / "data" / "volumes" / "npz" / "wdas_cloud_sixteenth_dense.npz"
+    if not quick and wdas.exists() and data.exists():
+        echo("WDAS cloud under the sun (128 cells, 640x360) ...")
+        res["wdas_sun"] = bench_scene(wdas, repeat)
+        res["wdas_sun"]["target_total_s"] = 1.0
+    else:
+        res["wdas_sun"] = {"skipped": "quick mode" if quick else f"{data} not found"}
+    return res

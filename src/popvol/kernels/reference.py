@@ -1,0 +1,163 @@
+"""Slow, readable NumPy twins of the Numba kernels, used by the tests on small grids.
+
+They implement the same equations with whole-array operations and the exact HG formulas of
+``popvol.hg`` (no lookup table), so a disagreement points at the kernel's indexing, races or
+table, not at the physics. Tallies: [reflected, transmitted, side escaped, absorbed].
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import hg
+
+REFLECTED, TRANSMITTED, SIDE_ESCAPED, ABSORBED = 0, 1, 2, 3
+
+
+def split_exact(W, Wa, rule):
+    """Per cell: ((front energy, its a'), (energy to EACH side, a'), (back energy, a')),
+    a' before decay: conditional mean cosine (`moment`) or the cell's a (`paper`)."""
+    W = np.asarray(W, np.float64)
+    a = np.clip(np.divide(Wa, W, out=np.zeros(W.shape), where=W > 0), -1.0, 1.0)
+    fr, sd, bk = hg.split_fractions(a)
+    mf, ms, mb = hg.conditional_mean_cosines(a) if rule == "moment" else (a, a, a)
+    return (W * fr, mf), (W * sd, ms), (W * bk, mb)
+
+
+def _shift(x, axis, step, periodic):
+    """Move x by one cell along ``axis`` (+1 or -1): returns (arrived, fell off). ``arrived``
+    is in destination coordinates; ``fell off`` (source coordinates) is what left the grid."""
+    if periodic:
+        return np.roll(x, step, axis=axis), np.zeros_like(x)
+    arrived, lost = np.zeros_like(x), np.zeros_like(x)
+    src, dst, edge = [slice(None)] * x.ndim, [slice(None)] * x.ndim, [slice(None)] * x.ndim
+    if step == 1:
+        src[axis], dst[axis], edge[axis] = slice(0, -1), slice(1, None), slice(-1, None)
+    else:
+        src[axis], dst[axis], edge[axis] = slice(1, None), slice(0, -1), slice(0, 1)
+    arrived[tuple(dst)] = x[tuple(src)]
+    lost[tuple(edge)] = x[tuple(edge)]
+    return arrived, lost
+
+
+def _move(e, m, Th, Dh, axis, step, periodic, tally, slot):
+    """Send energy e (anisotropy m) one cell along axis. Transmittance Th[src] Th[dst], decay
+    Dh[src] Dh[dst]; what leaves the grid crosses half a cell (Th[src]) and is tallied in
+    ``slot``. Returns (energy, energy * a) arriving at each destination."""
+    e_in, e_out = _shift(e, axis, step, periodic)
+    ea_in, _ = _shift(e * m * Dh, axis, step, periodic)
+    T = _shift(Th, axis, step, periodic)[0] * Th          # zero where nothing can arrive
+    tally[ABSORBED] += np.sum(e_in * (1 - T)) + np.sum(e_out * (1 - Th))
+    tally[slot] += np.sum(e_out * Th)
+    return e_in * T, ea_in * T * Dh
+
+
+def jacobi_step(W, Wa, Th, Dh, rule, periodic, inv_area, phi, phia, tally):
+    """One wavefront iteration (twin of kernels.propagation.jacobi_step + boundary_escape):
+    accumulate the wave into phi/phia, send every cell's packet to its 6 neighbours.
+    Returns the next wave (W, Wa), float64."""
+    Th, Dh = Th.astype(np.float64), Dh.astype(np.float64)
+    phi += W * inv_area
+    phia += Wa * inv_area
+    (ef, mf), (es, ms), (eb, mb) = split_exact(W, Wa, rule)
+    moves = [(0, +1, ef, mf, TRANSMITTED, False), (0, -1, eb, mb, REFLECTED, False)]
+    moves += [(axis, step, es, ms, SIDE_ESCAPED, periodic) for axis in (1, 2) for step in (1, -1)]
+    W_new, Wa_new = np.zeros(W.shape), np.zeros(W.shape)
+    for axis, step, e, m, slot, wrap in moves:
+        e_in, ea_in = _move(e, m, Th, Dh, axis, step, wrap, tally, slot)
+        W_new += e_in
+        Wa_new += ea_in
+    return W_new, Wa_new
+
+
+def sweep(R, Ra, Th, Dh, rule, periodic, forward, inv_area, phi, phia, tally):
+    """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), slice by slice, in place:
+    each slice sends its pending packets; front/back parts land in slices k +- 1, side parts
+    in the lateral neighbours of the same slice (pending until the next visit).
+    Returns the energy still pending."""
+    n0 = R.shape[0]
+    for k in (range(n0) if forward else range(n0 - 1, -1, -1)):
+        w, wa = R[k].astype(np.float64), Ra[k].astype(np.float64)
+        R[k] = 0.0
+        Ra[k] = 0.0
+        phi[k] += w * inv_area
+        phia[k] += wa * inv_area
+        (ef, mf), (es, ms), (eb, mb) = split_exact(w, wa, rule)
+        th, dh = Th[k].astype(np.float64), Dh[k].astype(np.float64)
+        for kn, e, m, slot in ((k + 1, ef, mf, TRANSMITTED), (k - 1, eb, mb, REFLECTED)):
+            if 0 <= kn < n0:
+                T = th * Th[kn]
+                R[kn] += e * T
+                Ra[kn] += e * m * T * dh * Dh[kn]
+                tally[ABSORBED] += np.sum(e * (1 - T))
+            else:
+                tally[slot] += np.sum(e * th)
+                tally[ABSORBED] += np.sum(e * (1 - th))
+        for axis in (0, 1):
+            for step in (1, -1):
+                e_in, ea_in = _move(es, ms, th, dh, axis, step, periodic, tally, SIDE_ESCAPED)
+                R[k] += e_in
+                Ra[k] += ea_in
+    return float(R.sum(dtype=np.float64))
+
+
+def trilinear(grid, q):
+    """Twin of kernels.sampling.trilinear: grid (nx, ny, nz) at continuous indices q (..., 3);
+    zero outside the cells [-1/2, n - 1/2], clamped to the edge within the outer half cell."""
+    q = np.asarray(q, np.float64)
+    n = np.asarray(grid.shape)
+    inside = np.all((q >= -0.5) & (q <= n - 0.5), axis=-1)
+    qc = np.clip(q, 0, n - 1)
+    i0 = np.minimum(np.floor(qc).astype(int), np.maximum(n - 2, 0))
+    f = qc - i0
+    i1 = np.minimum(i0 + 1, n - 1)
+    out = np.zeros(q.shape[:-1])
+    for cx in (0, 1):
+        for cy in (0, 1):
+            for cz in (0, 1):
+                idx = tuple((i1 if c else i0)[..., a] for a, c in enumerate((cx, cy, cz)))
+                w = np.prod([f[..., a] if c else 1 - f[..., a] for a, c in enumerate((cx, cy, cz))], axis=0)
+                out += w * grid[idx]
+    return np.where(inside, out, 0.0)
+
+
+def render_pixel(scene, solution, px, py):
+    """Twin of kernels.render.render_kernel for one pixel centre (no jitter): linear RGB (3,)."""
+    med, cam, m = scene.medium, scene.camera, scene.method
+    fwd, right, up = cam.basis()
+    tan_half = np.tan(np.radians(cam.fov) / 2)
+    sx = (2 * (px + 0.5) / cam.width - 1) * tan_half * cam.width / cam.height
+    sy = (1 - 2 * (py + 0.5) / cam.height) * tan_half
+    d = fwd + sx * right + sy * up
+    d /= np.linalg.norm(d)
+    lo, hi = med.bounds
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo - cam.origin) / d, (hi - cam.origin) / d
+    t0 = max(0.0, np.nanmax(np.minimum(ta, tb)))
+    t1 = np.nanmin(np.maximum(ta, tb))
+    step = m.step * med.voxel_size.min()
+    L, Tv, t = np.zeros(3), 1.0, t0
+    while t < t1:
+        ds = min(step, t1 - t)
+        x = cam.origin + (t + 0.5 * ds) * d
+        t += ds
+        q = (x - med.origin) / med.voxel_size
+        rho = float(trilinear(med.density, np.clip(q, -0.5, np.asarray(med.shape) - 0.5)))
+        if rho <= 0:
+            continue
+        sigma_t = med.scale * rho
+        sigma_s = med.albedo * sigma_t
+        Ls = np.zeros(3)
+        for l in range(len(solution.directions)):
+            p = float(trilinear(solution.phi[l, 0], np.clip(q, -0.5, np.asarray(med.shape) - 0.5)))
+            if p <= 0:
+                continue
+            A = float(trilinear(solution.phia[l, 0], np.clip(q, -0.5, np.asarray(med.shape) - 0.5))) / p
+            mu = -np.dot(solution.directions[l], d)
+            Ls += p * hg.f_hg(mu, np.clip(med.g * A, -0.9999, 0.9999)) * solution.irradiance[l]
+        T_seg = np.exp(-sigma_t * ds)
+        L += Tv * (1 - T_seg) / sigma_t * sigma_s * Ls
+        Tv *= T_seg
+        if Tv < 1e-4:
+            Tv = 0.0
+            break
+    return L + Tv * np.asarray(scene.background)

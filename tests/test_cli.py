@@ -1,0 +1,114 @@
+"""The command line and scene validation: the main job works, bad input gives one clear line."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from popvol.errors import PopvolError
+from popvol.scene import load_scene, scene_from_dict, DEMO_SCENE
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def popvol(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "popvol.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+def test_render_demo_writes_png_exr_and_stats(tmp_path):
+    out, exr, stats = tmp_path / "cloud.png", tmp_path / "cloud.exr", tmp_path / "stats.json"
+    r = popvol("render", "-o", str(out), "--exr", str(exr), "--width", "64", "--height", "36",
+               "--resolution", "32", "--stats", str(stats))
+    assert r.returncode == 0, r.stderr
+    assert out.stat().st_size > 1000 and exr.stat().st_size > 1000
+    assert "64x36" in r.stdout and "propagate" in r.stdout
+    doc = json.loads(stats.read_text())
+    for key in ("load", "resample", "propagate", "render"):
+        assert doc["seconds"][key] >= 0
+    d = doc["domains"][0]
+    assert d["iterations"] > 0 and d["residual"] <= doc["method"]["tolerance"]
+    b = d["budget_per_unit_irradiance"]
+    assert abs(b["balance_error"]) < 1e-4
+    assert b["injected"] > 0 and b["escaped"] > 0.5 * b["injected"]
+    from PIL import Image
+    im = np.asarray(Image.open(out))
+    assert im.shape == (36, 64, 3) and im.std() > 5      # a cloud, not a flat image
+
+
+def test_example_toml_is_the_demo():
+    a = load_scene(REPO / "examples" / "demo.toml")
+    b = load_scene()
+    np.testing.assert_array_equal(a.medium.density, b.medium.density)
+    assert (a.medium.scale, a.medium.albedo, a.medium.g) == (b.medium.scale, b.medium.albedo, b.medium.g)
+    np.testing.assert_array_equal(a.camera.origin, b.camera.origin)
+    assert vars(a.method) == vars(b.method)
+
+
+def write_scene(tmp_path, text, name="s.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+MEDIUM = '[medium]\ntype = "procedural"\nresolution = 16\n'
+LIGHT = '[[lights]]\ndirection = [0, -1, 0]\n'
+
+
+@pytest.mark.parametrize("snippet,words", [
+    (MEDIUM + 'albedo = 1.5\n' + LIGHT, ["medium.albedo", "[0, 1]"]),
+    (MEDIUM + 'g = 1.0\n' + LIGHT, ["medium.g", "(-1, 1)"]),
+    (MEDIUM + 'g = nan\n' + LIGHT, ["medium.g"]),
+    (MEDIUM + 'scale = -2\n' + LIGHT, ["medium.scale"]),
+    (MEDIUM + '[[lights]]\ndirection = [0, 0, 0]\n', ["direction"]),
+    (MEDIUM + '[[lights]]\ntype = "spot"\ndirection = [0, -1, 0]\n', ["lights[0].type", "directional"]),
+    (MEDIUM + LIGHT + '[camera]\nwidth = 0\n', ["camera.width", ">= 1"]),
+    (MEDIUM + LIGHT + '[camera]\nheight = -3\n', ["camera.height"]),
+    (MEDIUM + LIGHT + '[camera]\nfov = 190\n', ["camera.fov", "(0, 180)"]),
+    (MEDIUM + LIGHT + '[camera]\norigin = [0, 0, 0]\ntarget = [0, 0, 0]\n', ["camera.target"]),
+    (MEDIUM + LIGHT + '[method]\nsolver = "magic"\n', ["method.solver", "sweep"]),
+    (MEDIUM + LIGHT + '[method]\nresolution = 100000\n', ["method.resolution", "4096"]),
+    (MEDIUM + LIGHT + '[method]\nresolution = 4096\n', ["method.resolution", "GiB"]),
+    (MEDIUM + 'albdo = 0.5\n' + LIGHT, ["unknown key medium.albdo"]),
+    ('[medium]\ntype = "file"\nfile = "nope.npz"\n' + LIGHT, ["nope.npz"]),
+    (MEDIUM, ["lights"]),
+    ('this is not toml', ["invalid TOML"]),
+])
+def test_bad_scene_gives_one_clear_line(tmp_path, snippet, words):
+    p = write_scene(tmp_path, snippet)
+    r = popvol("render", str(p), "-o", str(tmp_path / "x.png"), "--width", "8", "--height", "8")
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    err = r.stderr.strip()
+    assert err.startswith("popvol: error: ") and "\n" not in err and "Traceback" not in err, err
+    for w in words:
+        assert w in err, err
+    assert "s.toml" in err or "nope.npz" in err
+
+
+def test_bad_density_files(tmp_path):
+    rho = np.ones((4, 4, 4), np.float32)
+    rho[1, 2, 3] = np.nan
+    np.savez(tmp_path / "nan.npz", density=rho)
+    np.savez(tmp_path / "neg.npz", density=-np.ones((4, 4, 4), np.float32))
+    np.savez(tmp_path / "flat.npz", density=np.ones((4, 4), np.float32))
+    for name, word in (("nan", "NaN"), ("neg", "negative"), ("flat", "3-D")):
+        p = write_scene(tmp_path, f'[medium]\nfile = "{name}.npz"\n' + LIGHT, f"{name}.toml")
+        with pytest.raises(PopvolError, match=word) as e:
+            load_scene(p)
+        assert f"{name}.npz" in str(e.value)
+
+
+def test_missing_scene_and_unwritable_output(tmp_path):
+    r = popvol("render", str(tmp_path / "missing.toml"))
+    assert r.returncode == 2 and "missing.toml" in r.stderr and "not found" in r.stderr
+    r = popvol("render", "-o", str(tmp_path / "no" / "dir" / "x.png"))
+    assert r.returncode == 2 and "does not exist" in r.stderr
+
+
+def test_scene_from_dict_is_plain_data():
+    d = {**DEMO_SCENE, "medium": {**DEMO_SCENE["medium"], "resolution": 16}, "method": {"resolution": 16}}
+    s = scene_from_dict(d)
+    assert s.medium.shape == (16, 12, 16) and s.method.resolution == 16
+    with pytest.raises(PopvolError, match="medium.albedo"):
+        scene_from_dict({**d, "medium": {**d["medium"], "albedo": -0.1}})

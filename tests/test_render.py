@@ -1,0 +1,132 @@
+"""Rendering: the Numba kernel against its NumPy twin, an empty medium, and the optically thin
+limit against single scattering computed independently by brute force."""
+import numpy as np
+import pytest
+from scipy.ndimage import map_coordinates
+
+from popvol import hg
+from popvol.camera import Camera
+from popvol.kernels import reference as ref
+from popvol.lights import DirectionalLight
+from popvol.medium import Medium
+from popvol.propagate import solve
+from popvol.render import render
+from popvol.scene import Method, Scene
+
+
+def blob_medium(n=24, peak_tau=0.03, albedo=1.0, g=0.6):
+    """A Gaussian blob in the unit cube; peak_tau ~ optical depth through its centre."""
+    x = (np.arange(n) + 0.5) / n
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    rho = np.exp(-((X - 0.5) ** 2 + (Y - 0.5) ** 2 + (Z - 0.5) ** 2) / (2 * 0.15**2)).astype(np.float32)
+    scale = peak_tau / (0.15 * np.sqrt(2 * np.pi))     # integral of the Gaussian through the centre
+    return Medium(rho, 1.0 / n, np.full(3, 0.5 / n), scale=scale, albedo=albedo, g=g, source="blob")
+
+
+def blob_scene(direction, w=32, h=20, background=(0.1, 0.2, 0.3), **kw):
+    cam = Camera([0.5, 0.62, 2.4], [0.5, 0.5, 0.5], [0, 1, 0], 32.0, w, h)
+    return Scene(blob_medium(**kw), [DirectionalLight(direction, [1.0, 0.8, 0.6])], cam,
+                 np.array(background, float), Method(resolution=24, step=0.25, tolerance=1e-6))
+
+
+def single_scattering(scene, n_steps=400, n_light_steps=200):
+    """Brute-force L = int T_v sigma_s E T_light f_hg(mu; g) dt + T_v L_bg at pixel centres,
+    sigma_t by scipy's linear interpolation clamped to the edge inside the medium's cells."""
+    med, cam, light = scene.medium, scene.camera, scene.lights[0]
+    lo, hi = med.bounds
+    n = np.asarray(med.shape)
+
+    def sigma_t(p):
+        q = (p - med.origin) / med.voxel_size
+        inside = np.all((q >= -0.5) & (q <= n - 0.5), axis=-1)
+        q = np.clip(q, 0, n - 1)
+        v = map_coordinates(med.density, q.reshape(-1, 3).T, order=1, mode="nearest").reshape(q.shape[:-1])
+        return med.scale * np.where(inside, v, 0.0)
+
+    fwd, right, up = cam.basis()
+    t = np.tan(np.radians(cam.fov) / 2)
+    px, py = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
+    sx = (2 * px / cam.width - 1) * t * cam.width / cam.height
+    sy = (1 - 2 * py / cam.height) * t
+    d = fwd + sx[..., None] * right + sy[..., None] * up
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ta, tb = (lo - cam.origin) / d, (hi - cam.origin) / d
+    t0 = np.clip(np.nanmax(np.minimum(ta, tb), axis=-1), 0, None)
+    t1 = np.nanmin(np.maximum(ta, tb), axis=-1)
+    t1 = np.maximum(t1, t0)
+    u = (np.arange(n_steps) + 0.5) / n_steps
+    ts = t0[..., None] + u * (t1 - t0)[..., None]                  # (H, W, S)
+    dt = ((t1 - t0) / n_steps)[..., None]
+    pts = cam.origin + ts[..., None] * d[..., None, :]
+    st = sigma_t(pts)
+    tau_v = np.cumsum(st * dt, axis=-1) - 0.5 * st * dt
+    # transmittance toward the light: march from each point against the light direction
+    ld = -light.direction
+    tl_exit = np.full(pts.shape[:-1], np.inf)
+    for a in range(3):
+        if abs(ld[a]) > 1e-12:
+            tl_exit = np.minimum(tl_exit, np.maximum((lo[a] - pts[..., a]) / ld[a], (hi[a] - pts[..., a]) / ld[a]))
+    tau_l = np.zeros(pts.shape[:-1])
+    for s in (np.arange(n_light_steps) + 0.5) / n_light_steps:
+        tau_l += sigma_t(pts + (s * tl_exit)[..., None] * ld) * tl_exit / n_light_steps
+    mu = -(d @ light.direction)
+    phase = hg.f_hg(mu, med.g)[..., None]
+    L = np.sum(np.exp(-tau_v) * med.albedo * st * np.exp(-tau_l) * dt, axis=-1)[..., None] * phase * light.irradiance
+    return L + np.exp(-np.sum(st * dt, axis=-1))[..., None] * scene.background
+
+
+def _rel_error(direction, peak_tau):
+    scene = blob_scene(direction, background=(0, 0, 0), peak_tau=peak_tau)
+    img = render(scene, jitter=False).astype(np.float64)
+    ss = single_scattering(scene)
+    medium_px = ss[..., 0] > 0.05 * ss[..., 0].max()
+    assert medium_px.sum() > 50
+    return ((img - ss) / np.maximum(ss, 1e-30))[medium_px]
+
+
+@pytest.mark.parametrize("direction", [[0.3, -0.6, 0.74], [0.3, -0.8, -0.52]], ids=["forward", "backward"])
+def test_thin_medium_matches_single_scattering(direction):
+    """In the optically thin limit POP's in-scattered radiance (black background) is single
+    scattering. The difference is O(tau): POP attenuates toward the light by sigma_a only
+    (here 0) and adds multiple scattering. Measured: median 1.4-2.2 % at peak optical depth
+    0.03, 0.3-0.4 % at 0.006, 0.05-0.09 % at 0.0012. So: within 1.5 % of single scattering at
+    tau = 0.006 in every pixel, and the error shrinks in proportion to tau."""
+    coarse = _rel_error(direction, 0.03)
+    fine = _rel_error(direction, 0.006)
+    assert np.abs(fine).max() < 0.015, np.abs(fine).max()
+    assert np.median(np.abs(fine)) < 0.006
+    assert np.median(np.abs(fine)) < 0.3 * np.median(np.abs(coarse))     # linear in tau
+    assert fine.min() > -1e-3          # POP is never darker than single scattering here
+
+
+def test_background_is_attenuated_by_the_view_transmittance():
+    """A non-scattering medium (albedo 0): the image is exp(-int sigma_t) * background."""
+    scene = blob_scene([0, -1, 0], peak_tau=1.5, albedo=0.0)
+    img = render(scene, jitter=False).astype(np.float64)
+    np.testing.assert_allclose(img, single_scattering(scene), rtol=2e-3, atol=1e-6)
+
+
+def test_empty_medium_shows_the_background():
+    scene = blob_scene([0, -1, 0])
+    scene.medium.density[:] = 0
+    img = render(scene)
+    np.testing.assert_allclose(img, np.broadcast_to(scene.background, img.shape), rtol=1e-6)
+
+
+def test_render_kernel_equals_numpy_twin():
+    scene = blob_scene([0.3, -0.6, 0.74], w=12, h=8, peak_tau=2.0, albedo=0.8, g=0.5)
+    sol = solve(scene)
+    img = render(scene, sol, jitter=False)
+    for py in range(scene.camera.height):
+        for px in range(scene.camera.width):
+            np.testing.assert_allclose(img[py, px], ref.render_pixel(scene, sol, px, py), rtol=2e-4, atol=1e-6)
+
+
+def test_jitter_is_deterministic_and_unbiased():
+    scene = blob_scene([0.3, -0.6, 0.74], peak_tau=1.0)
+    a, b = render(scene), render(scene)
+    np.testing.assert_array_equal(a, b)
+    c = render(scene, jitter=False)
+    assert not np.array_equal(a, c)
+    assert a.mean() == pytest.approx(c.mean(), rel=0.01)
