@@ -22,7 +22,7 @@ def test_render_demo_writes_png_exr_and_stats(tmp_path):
     r = popvol("render", "-o", str(out), "--exr", str(exr), "--width", "64", "--height", "36",
                "--resolution", "32", "--stats", str(stats))
     assert r.returncode == 0, r.stderr
-    assert out.stat().st_size > 1000 and exr.stat().st_size > 1000
+    assert out.stat().st_size > 200 and exr.stat().st_size > 1000
     assert "64x36" in r.stdout and "propagate" in r.stdout
     doc = json.loads(stats.read_text())
     for key in ("load", "resample", "propagate", "render"):

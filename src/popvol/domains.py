@@ -79,7 +79,7 @@ def directional_domain(medium: Medium, direction: np.ndarray, resolution: int) -
     pad = (np.asarray(shape) * h - extent) / 2
     origin = (lmin - pad) @ frame
     dom = DirectionalDomain(frame, origin, h, shape)
-    check_memory(dom.n_cells * BYTES_PER_DOMAIN_CELL, f"method.resolution = {resolution}",
+    check_memory(dom.n_cells * BYTES_PER_DOMAIN_CELL, f"{medium.source}: method.resolution = {resolution}",
                  f"a light domain of {shape[0]}x{shape[1]}x{shape[2]} cells")
     return dom
 

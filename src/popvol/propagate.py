@@ -246,7 +246,7 @@ def solve(scene: Scene, progress=None) -> Solution:
     """Propagate every light of ``scene``; returns the fields the renderer needs."""
     med = scene.medium
     n = len(scene.lights)
-    check_memory(2 * n * med.density.size * 4, "medium", f"fields of {n} light(s) on a "
+    check_memory(2 * n * med.density.size * 4, f"{med.source}: medium", f"fields of {n} light(s) on a "
                  f"{'x'.join(map(str, med.shape))} grid")
     phi = np.empty((n, 1) + med.shape, np.float32)
     phia = np.empty_like(phi)

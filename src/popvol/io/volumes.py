@@ -1,0 +1,142 @@
+"""Volume readers: dense NumPy .npz and Mitsuba .vol grids (OpenVDB comes in a later version).
+
+Convention (OpenVDB style): ``density[i, j, k]`` is indexed x, y, z and the centre of voxel
+(i, j, k) is at ``origin + (i, j, k) * voxel_size``; the medium is the union of the voxel
+cells, [origin - voxel/2, origin + (n - 1/2) voxel].
+"""
+from __future__ import annotations
+
+import struct
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import PopvolError
+
+SUFFIXES = (".npz", ".vol")
+VOL_HEADER_BYTES = 48
+
+
+@dataclass(frozen=True)
+class VolumeData:
+    density: np.ndarray      # float32 (nx, ny, nz), finite, >= 0
+    voxel_size: np.ndarray   # float64 (3,), world units
+    origin: np.ndarray       # float64 (3,), world position of the centre of voxel (0, 0, 0)
+    source: str
+
+
+def validate_density(density, source: str, field: str = "density") -> np.ndarray:
+    """The density checks every reader shares; returns float32, C-contiguous."""
+    d = np.asarray(density)
+    if d.ndim != 3 or min(d.shape) < 1:
+        raise PopvolError(f"{source}: {field} must be a 3-D array with every size >= 1, got shape {d.shape}")
+    if not (np.issubdtype(d.dtype, np.floating) or np.issubdtype(d.dtype, np.integer)):
+        raise PopvolError(f"{source}: {field} has dtype {d.dtype}; it must be numeric")
+    d = np.ascontiguousarray(d, np.float32)
+    bad = ~np.isfinite(d)
+    if bad.any():
+        first = tuple(int(v) for v in np.argwhere(bad)[0])
+        raise PopvolError(f"{source}: {field} has {int(bad.sum())} NaN/inf voxels (first at {first}); it must be finite")
+    if d.min() < 0:
+        at = tuple(int(v) for v in np.unravel_index(int(np.argmin(d)), d.shape))
+        raise PopvolError(f"{source}: {field} has negative values (min {float(d.min()):g} at {at}); it must be >= 0")
+    return d
+
+
+def _vec3(value, source: str, field: str, default: float) -> np.ndarray:
+    if value is None:
+        return np.full(3, default, np.float64)
+    v = np.asarray(value, np.float64).reshape(-1)
+    if v.size == 1:
+        v = np.repeat(v, 3)
+    if v.size != 3 or not np.all(np.isfinite(v)):
+        raise PopvolError(f"{source}: {field} must be 1 or 3 finite numbers, got {value!r}")
+    return v
+
+
+def read_npz(path, grid: str | None = None) -> VolumeData:
+    """Dense grid from .npz: array ``grid`` (default ``density``), optional ``voxel_size``
+    (1 or 3 values) and ``world_of_ijk_min`` (centre of voxel (0, 0, 0)); defaults 1 and 0."""
+    path = Path(path)
+    key = grid or "density"
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if key not in z.files:
+                raise PopvolError(f"{path}: no array named {key!r}; arrays in the file: {', '.join(z.files) or '(none)'}")
+            density = z[key]
+            voxel = z["voxel_size"] if "voxel_size" in z.files else None
+            origin = z["world_of_ijk_min"] if "world_of_ijk_min" in z.files else None
+    except (OSError, ValueError, zipfile.BadZipFile) as e:
+        raise PopvolError(f"{path}: cannot read as .npz ({e})") from None
+    voxel = _vec3(voxel, str(path), "voxel_size", 1.0)
+    if np.any(voxel <= 0):
+        raise PopvolError(f"{path}: voxel_size = {voxel.tolist()} must be > 0")
+    return VolumeData(validate_density(density, str(path), key), voxel,
+                      _vec3(origin, str(path), "world_of_ijk_min", 0.0), str(path))
+
+
+def read_vol(path) -> VolumeData:
+    """Mitsuba grid volume (.vol): 'VOL', version 3, int32 encoding (1 = float32), int32
+    xres, yres, zres, channels, 6 float32 bbox (the world AABB of the voxel cells), then
+    float32 data with x fastest."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as e:
+        raise PopvolError(f"{path}: cannot read ({e.strerror})") from None
+    if len(raw) < VOL_HEADER_BYTES or raw[:3] != b"VOL":
+        raise PopvolError(f"{path}: not a Mitsuba .vol file (header must start with 'VOL')")
+    if raw[3] != 3:
+        raise PopvolError(f"{path}: .vol version {raw[3]}; popvol reads version 3")
+    encoding, nx, ny, nz, channels = struct.unpack_from("<5i", raw, 4)
+    bbox = np.array(struct.unpack_from("<6f", raw, 24), np.float64)
+    if encoding != 1:
+        raise PopvolError(f"{path}: .vol encoding {encoding}; popvol reads encoding 1 (float32)")
+    if channels != 1:
+        raise PopvolError(f"{path}: header says {channels} channels; popvol reads 1-channel density grids")
+    if min(nx, ny, nz) < 1:
+        raise PopvolError(f"{path}: .vol resolution {nx}x{ny}x{nz} must be >= 1 along every axis")
+    expected = VOL_HEADER_BYTES + 4 * nx * ny * nz
+    if len(raw) != expected:
+        raise PopvolError(f"{path}: file has {len(raw)} bytes but its {nx}x{ny}x{nz} header needs {expected}")
+    lo, hi = bbox[:3], bbox[3:]
+    if not np.all(np.isfinite(bbox)) or np.any(hi <= lo):
+        raise PopvolError(f"{path}: .vol bbox {bbox.tolist()} must have max > min on every axis")
+    data = np.frombuffer(raw, "<f4", offset=VOL_HEADER_BYTES).reshape(nz, ny, nx)
+    density = validate_density(data.transpose(2, 1, 0), str(path))
+    voxel = (hi - lo) / np.array([nx, ny, nz])
+    return VolumeData(density, voxel, lo + voxel / 2, str(path))
+
+
+def write_vol(path, density, bbox_min, bbox_max) -> None:
+    """Write a 1-channel float32 Mitsuba .vol; ``density`` (nx, ny, nz) indexed x, y, z."""
+    d = np.asarray(density, np.float32)
+    nx, ny, nz = d.shape
+    header = b"VOL" + bytes([3]) + struct.pack("<5i", 1, nx, ny, nz, 1)
+    header += struct.pack("<6f", *np.asarray(bbox_min, float), *np.asarray(bbox_max, float))
+    try:
+        Path(path).write_bytes(header + np.ascontiguousarray(d.transpose(2, 1, 0), "<f4").tobytes())
+    except OSError as e:
+        raise PopvolError(f"{path}: cannot write ({e.strerror})") from None
+
+
+def read_volume(path, grid: str | None = None) -> VolumeData:
+    """Read a density grid, choosing the reader by suffix (.npz, .vol)."""
+    path = Path(path)
+    if not path.exists():
+        raise PopvolError(f"{path}: volume file not found")
+    if not path.is_file():
+        raise PopvolError(f"{path}: not a file")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return read_npz(path, grid)
+    if suffix == ".vol":
+        if grid not in (None, "density"):
+            raise PopvolError(f"{path}: .vol files hold one unnamed grid; remove medium.grid = {grid!r}")
+        return read_vol(path)
+    if suffix in (".vdb", ".nvdb"):
+        raise PopvolError(f"{path}: {suffix} is not supported yet; convert to .npz or .vol "
+                          f"(supported: {', '.join(SUFFIXES)})")
+    raise PopvolError(f"{path}: unsupported volume type {suffix or '(none)'}; supported: {', '.join(SUFFIXES)}")
