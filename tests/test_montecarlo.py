@@ -1,0 +1,39 @@
+"""The Monte Carlo oracle itself, against analytic results (it must be right to judge POP)."""
+import numpy as np
+import pytest
+
+from montecarlo import cube_beam_mc, slab_mc
+
+
+def test_slab_pure_absorber_is_beer_lambert():
+    r = slab_mc(2.0, 0.0, 0.5, n_photons=50_000, seed=1)
+    assert r["R"] == 0.0
+    assert r["T"] == pytest.approx(np.exp(-2.0), abs=4 * r["stderr_T"] + 1e-3)
+
+
+def test_slab_conservative_reflects_what_it_does_not_transmit():
+    r = slab_mc(3.0, 1.0, 0.3, n_photons=50_000, seed=2)
+    assert r["T"] + r["R"] == pytest.approx(1.0, abs=1e-9)
+
+
+def test_slab_reproduces_published_check():
+    """RECONSTRUCTION.md 7.3 (200k paths): tau 4, albedo 1, g 0.8 -> T 0.747, R 0.253."""
+    r = slab_mc(4.0, 1.0, 0.8, n_photons=200_000, seed=3)
+    assert r["T"] == pytest.approx(0.747, abs=3 * r["stderr_T"] + 0.005)
+
+
+def test_cube_pure_absorber():
+    tau, hw = 3.0, 0.125
+    r = cube_beam_mc(tau, 0.0, 0.8, hw, n_photons=20_000, seed=4, n_depth_bins=8)
+    assert r["transmitted"] == pytest.approx(np.exp(-tau), abs=4 * r["stderr_transmitted"] + 1e-3)
+    assert r["reflected"] == 0 and r["side"] == 0
+    x = np.linspace(0, 1, 9)
+    expected = (np.exp(-tau * x[:-1]) - np.exp(-tau * x[1:])) / (tau / 8)
+    np.testing.assert_allclose(r["fluence_depth"], expected, rtol=0.03)
+    assert r["r2_mean"] == pytest.approx(2 * hw**2 / 3, rel=0.02)   # the beam's own spread
+
+
+def test_cube_conservative_all_energy_leaves():
+    r = cube_beam_mc(5.0, 1.0, 0.6, 0.1, n_photons=20_000, seed=5)
+    assert r["absorbed"] == 0
+    assert r["transmitted"] + r["reflected"] + r["side"] == pytest.approx(1.0, abs=1e-9)
