@@ -116,21 +116,25 @@ def test_jacobi_kernel_equals_numpy_twin(rule, periodic, rng):
 
 
 @pytest.mark.parametrize("rule", ["moment", "paper"])
-@pytest.mark.parametrize("forward", [True, False])
+@pytest.mark.parametrize("forward, flip", [(True, False), (False, True)])
 @pytest.mark.parametrize("periodic", [False, True])
-def test_sweep_kernel_equals_numpy_twin(rule, forward, periodic, rng):
-    shape = (5, 6, 4)
+@pytest.mark.parametrize("shape", [(5, 6, 4), (4, 37, 5)])   # one band; three bands (16, 16, 5 rows)
+def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, rng):
     W, Wa, Th, Dh = random_state(rng, shape, signed=rule == "moment")
+    w_min = float(np.quantile(W, 0.4))       # some non-empty cells hold their packets back
     table = split_table()
     R, Ra = W.copy(), Wa.copy()
     phi, phia = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
-    S, Sa = np.zeros(shape[1:], np.float32), np.zeros(shape[1:], np.float32)
-    tally = np.zeros(4)
-    pending = K.sweep(R, Ra, Th, Dh, table, rule == "moment", periodic, forward, 2.0, phi, phia, S, Sa, tally)
+    bands = K.band_edges(shape[1])
+    halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
+    tally_b, tally = np.zeros((len(bands) - 1, 4)), np.zeros(4)
+    pending = K.sweep(R, Ra, Th, Dh, table, rule == "moment", periodic, forward, flip, w_min, 2.0, phi,
+                      phia, bands, halo, tally_b, tally)
 
     R_r, Ra_r = W.astype(np.float64), Wa.astype(np.float64)
     phi_r, phia_r, tally_r = np.zeros(shape), np.zeros(shape), np.zeros(4)
-    pending_r = ref.sweep(R_r, Ra_r, Th, Dh, rule, periodic, forward, 2.0, phi_r, phia_r, tally_r)
+    pending_r = ref.sweep(R_r, Ra_r, Th, Dh, rule, periodic, forward, flip, w_min, 2.0, phi_r, phia_r,
+                          tally_r)
     np.testing.assert_allclose(R, R_r, rtol=5e-5, atol=1e-7)
     np.testing.assert_allclose(Ra, Ra_r, rtol=5e-5, atol=1e-6)
     np.testing.assert_allclose(phi, phi_r, rtol=5e-5, atol=1e-7)

@@ -134,18 +134,20 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
     cap = max_iterations or default_max_iterations(shape, solver)
 
     W = np.zeros(shape, np.float32)
-    W[0] = injection * Th[0]
-    Wa = W * np.float32(a0)
     phi = np.zeros(shape, np.float32)
     phia = np.zeros(shape, np.float32)
     budget = Budget(injected=float(np.sum(injection, dtype=np.float64)))
-    budget.absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
     tally = np.zeros(4)
-    in_flight = float(np.sum(W, dtype=np.float64))
     target = tolerance * budget.injected
     t0 = time.perf_counter()
     it = 0
     if solver == "jacobi":
+        # the wave holds packets at cell centres: the injected light has crossed half a cell
+        W[0] = injection * Th[0]
+        Wa = W * np.float32(a0)
+        Wa[0] *= Dh[0]
+        budget.absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+        in_flight = float(np.sum(W, dtype=np.float64))
         parts = np.empty((6,) + shape, np.float32)
         while in_flight > target and it < cap:
             K.jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, parts, tally)
@@ -154,11 +156,20 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
             if progress is not None and it % 16 == 0:
                 progress(it, in_flight / budget.injected)
     else:
-        S = np.zeros(shape[1:], np.float32)
-        Sa = np.zeros(shape[1:], np.float32)
+        # pending packets have arrived at the face of their cell; the cell applies its half step
+        W[0] = injection
+        Wa = W * np.float32(a0)
+        in_flight = budget.injected
+        bands = K.band_edges(shape[1])
+        halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
+        tally_b = np.zeros((len(bands) - 1, 4))
+        # cells hold back packets below w_min; all of them together stay below a tenth of the
+        # tolerance, so they cannot keep the solver from converging
+        w_min = 0.1 * target / Th.size
         while in_flight > target and it < cap:
-            in_flight = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, inv_area,
-                                phi, phia, S, Sa, tally)
+            # alternate +d / -d every sweep and the lateral order every second sweep
+            in_flight = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
+                                w_min, inv_area, phi, phia, bands, halo, tally_b, tally)
             it += 1
             if progress is not None:
                 progress(it, in_flight / budget.injected)

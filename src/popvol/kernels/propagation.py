@@ -153,104 +153,144 @@ def jacobi_gather(parts, Th, Dh, periodic, W_out, Wa_out, tally):
 
 
 # ---------------------------------------------------------------------------------------------
-# Gauss-Seidel sweeps: slice by slice along +d or -d.
+# Gauss-Seidel sweeps: slice by slice along +d or -d, cell by cell within a slice.
 # ---------------------------------------------------------------------------------------------
+#
+# Pending state of a sweep: (R, Ra) hold what has ARRIVED at a cell since its last visit, before
+# the receiver's half step; the receiver applies its Th (and Dh) when it next sends. Deposits are
+# then plain additions (no factor lookups at the destination); the fixed point is the same as
+# Jacobi's, which applies the receiver's half step at once.
+#
+# Parallelism without races or barriers: the lateral axis u is cut into bands of BAND_ROWS rows,
+# one thread per band for the whole sweep. A side part that crosses into another band is parked
+# in ``halo`` and delivered after the sweep (it waits one sweep, like every pending packet);
+# everything else is deposited in place, so light can cross a whole band or the whole domain
+# along the sweep direction in one sweep. Band edges do not depend on the thread count, so
+# the result is the same on every machine.
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
-def _send_slice(R, Ra, Th, Dh, table, moment, periodic, k, inv_area, phi, phia, S, Sa, tally):
-    """Sweep pass 1 on slice k: every cell sends its pending packet. Front and back parts go
-    straight into slices k +- 1 (one writer per cell: race-free); side parts, after the
-    sender's half step, are parked in (S, Sa) for pass 2."""
-    n0, n1, n2 = R.shape
-    refl = 0.0
-    trans = 0.0
-    side_out = 0.0
-    absorbed = 0.0
-    for ii in nb.prange(n1):
-        i = np.int64(ii)
-        for j in range(n2):
-            w = R[k, i, j]
-            if w <= 0.0:
-                S[i, j] = 0.0
-                Sa[i, j] = 0.0
-                continue
-            wa = Ra[k, i, j]
-            R[k, i, j] = 0.0
-            Ra[k, i, j] = 0.0
-            phi[k, i, j] += w * inv_area
-            phia[k, i, j] += wa * inv_area
-            ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
-            th = Th[k, i, j]
-            thd = th * Dh[k, i, j]
-            absorbed += w * (1.0 - th)
-            if k + 1 < n0:                      # front part -> slice k + 1
-                t = Th[k + 1, i, j]
-                R[k + 1, i, j] += ef * th * t
-                Ra[k + 1, i, j] += efa * thd * t * Dh[k + 1, i, j]
-                absorbed += ef * th * (1.0 - t)
-            else:
-                trans += ef * th
-            if k > 0:                           # back part -> slice k - 1
-                t = Th[k - 1, i, j]
-                R[k - 1, i, j] += eb * th * t
-                Ra[k - 1, i, j] += eba * thd * t * Dh[k - 1, i, j]
-                absorbed += eb * th * (1.0 - t)
-            else:
-                refl += eb * th
-            S[i, j] = es * th
-            Sa[i, j] = esa * thd
-            if not periodic:
-                missing = (i == 0) + (i == n1 - 1) + (j == 0) + (j == n2 - 1)
-                side_out += missing * es * th
-    tally[REFLECTED] += refl
-    tally[TRANSMITTED] += trans
-    tally[SIDE_ESCAPED] += side_out
-    tally[ABSORBED] += absorbed
+BAND_ROWS = 16
+
+
+def band_edges(n_u: int) -> np.ndarray:
+    """int64 (n_bands + 1,): row edges of the bands of the lateral axis u (the last may be
+    shorter; a band of one row is merged into its neighbour)."""
+    edges = list(range(0, n_u, BAND_ROWS)) + [n_u]
+    if len(edges) > 2 and edges[-1] - edges[-2] < 2:
+        edges.pop(-2)
+    return np.asarray(edges, np.int64)
+
+
+@nb.njit(inline="always", cache=True)
+def _add(R, Ra, k, i, j, e, ea):
+    R[k, i, j] += e
+    Ra[k, i, j] += ea
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def _gather_sides(R, Ra, Th, Dh, periodic, k, S, Sa, tally):
-    """Sweep pass 2 on slice k: every cell gathers the side parts its 4 lateral neighbours
-    parked in pass 1. They stay pending in slice k until its next visit."""
+def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
+                phia, bands, halo, tally_b):
+    """One sweep over all slices (``forward``: k = 0, 1, ...), each band by its own thread;
+    within a slice rows and columns run in increasing order, or decreasing if ``flip``.
+    A cell sends only if its pending energy exceeds ``w_min`` (below it the energy stays pending,
+    counted as in flight, and is sent once more has arrived: thresholded Gauss-Seidel, as in
+    Southwell relaxation or progressive radiosity).
+
+    halo float32 (n_bands, 2, 2, n_d, n_v): [band, 0 = toward row lo - 1 | 1 = toward row hi,
+    0 = energy | 1 = energy * a, k, j]. tally_b float64 (n_bands, 4).
+    """
     n0, n1, n2 = R.shape
-    absorbed = 0.0
-    for ii in nb.prange(n1):
-        i = np.int64(ii)
-        for j in range(n2):
-            e = 0.0
-            ea = 0.0
-            for nbr in range(4):
-                is_ = i + (nbr == 0) - (nbr == 1)
-                js = j + (nbr == 2) - (nbr == 3)
-                if periodic:
-                    is_ = _wrap(is_, n1)
-                    js = _wrap(js, n2)
-                elif is_ < 0 or is_ >= n1 or js < 0 or js >= n2:
-                    continue
-                e += S[is_, js]
-                ea += Sa[is_, js]
-            if e > 0.0:
-                th = Th[k, i, j]
-                R[k, i, j] += e * th
-                Ra[k, i, j] += ea * th * Dh[k, i, j]
-                absorbed += e * (1.0 - th)
-    tally[ABSORBED] += absorbed
+    for bb in nb.prange(bands.shape[0] - 1):
+        b = np.int64(bb)
+        lo = bands[b]
+        hi = bands[b + 1]
+        refl = 0.0
+        trans = 0.0
+        side_out = 0.0
+        absorbed = 0.0
+        for step in range(n0):
+            k = step if forward else n0 - 1 - step
+            for si in range(hi - lo):
+                i = hi - 1 - si if flip else lo + si
+                for sj in range(n2):
+                    j = n2 - 1 - sj if flip else sj
+                    w = R[k, i, j]
+                    if w <= w_min:
+                        continue
+                    th = Th[k, i, j]                    # the receiver's half step ...
+                    thd = th * Dh[k, i, j]
+                    wa = Ra[k, i, j] * thd
+                    absorbed += w * (1.0 - th)
+                    w *= th
+                    R[k, i, j] = 0.0
+                    Ra[k, i, j] = 0.0
+                    phi[k, i, j] += w * inv_area
+                    phia[k, i, j] += wa * inv_area
+                    ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
+                    absorbed += w * (1.0 - th)          # ... and the sender's
+                    if k + 1 < n0:
+                        _add(R, Ra, k + 1, i, j, ef * th, efa * thd)
+                    else:
+                        trans += ef * th
+                    if k > 0:
+                        _add(R, Ra, k - 1, i, j, eb * th, eba * thd)
+                    else:
+                        refl += eb * th
+                    es *= th
+                    esa *= thd
+                    for jj in (j - 1, j + 1):           # neighbours along v: same band
+                        if jj < 0 or jj >= n2:
+                            if not periodic:
+                                side_out += es
+                                continue
+                            jj = _wrap(jj, n2)
+                        _add(R, Ra, k, i, jj, es, esa)
+                    for side in range(2):               # neighbours along u
+                        ii = i - 1 + 2 * side
+                        if ii >= lo and ii < hi:
+                            _add(R, Ra, k, ii, j, es, esa)
+                        elif not periodic and (ii < 0 or ii >= n1):
+                            side_out += es
+                        else:
+                            halo[b, side, 0, k, j] += es
+                            halo[b, side, 1, k, j] += esa
+        tally_b[b, REFLECTED] += refl
+        tally_b[b, TRANSMITTED] += trans
+        tally_b[b, SIDE_ESCAPED] += side_out
+        tally_b[b, ABSORBED] += absorbed
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def deliver_halo(R, Ra, bands, halo):
+    """Move the side parts parked in ``halo`` into the neighbouring bands' edge rows (wrapping
+    around the lateral faces when periodic; what left the domain never entered the halo).
+    Race-free: band b writes only row lo - 1 (owned by band b - 1, written by no other band)
+    and row hi (band b + 1's first row), as every band has >= 2 rows."""
+    n0, n1, n2 = R.shape
+    for bb in nb.prange(bands.shape[0] - 1):
+        b = np.int64(bb)
+        for side in range(2):
+            ii = _wrap(bands[b] - 1 if side == 0 else bands[b + 1], n1)
+            for k in range(n0):
+                for j in range(n2):
+                    e = halo[b, side, 0, k, j]
+                    if e != 0.0:
+                        _add(R, Ra, k, ii, j, e, halo[b, side, 1, k, j])
+                        halo[b, side, 0, k, j] = 0.0
+                        halo[b, side, 1, k, j] = 0.0
 
 
 @nb.njit(fastmath=True, cache=True)
-def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, inv_area, phi, phia, S, Sa, tally):
-    """One Gauss-Seidel sweep over the slices, along +d (``forward``) or -d.
-
-    Pending packets (R, Ra) are sent slice by slice; a packet sent toward the slice visited
-    next is sent again in the same sweep, so the direct light crosses the domain in one sweep.
-    Energy is conserved exactly: every packet is sent once and only absorption and the
-    boundary remove energy. Returns the energy still pending (in flight).
-    """
-    n0 = R.shape[0]
-    for step in range(n0):
-        k = step if forward else n0 - 1 - step
-        _send_slice(R, Ra, Th, Dh, table, moment, periodic, k, inv_area, phi, phia, S, Sa, tally)
-        _gather_sides(R, Ra, Th, Dh, periodic, k, S, Sa, tally)
+def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi, phia,
+          bands, halo, tally_b, tally):
+    """One Gauss-Seidel sweep (see above); adds the sweep's tallies to ``tally`` and returns
+    the energy still pending (arrived, before the receivers' half steps)."""
+    tally_b[:] = 0.0
+    sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
+                phia, bands, halo, tally_b)
+    deliver_halo(R, Ra, bands, halo)
+    for b in range(tally_b.shape[0]):
+        for c in range(4):
+            tally[c] += tally_b[b, c]
     return total_energy(R)
 
 

@@ -69,34 +69,59 @@ def jacobi_step(W, Wa, Th, Dh, rule, periodic, inv_area, phi, phia, tally):
     return W_new, Wa_new
 
 
-def sweep(R, Ra, Th, Dh, rule, periodic, forward, inv_area, phi, phia, tally):
-    """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), slice by slice, in place:
-    each slice sends its pending packets; front/back parts land in slices k +- 1, side parts
-    in the lateral neighbours of the same slice (pending until the next visit).
-    Returns the energy still pending."""
-    n0 = R.shape[0]
+def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, phia, tally,
+          band_rows=16):
+    """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), cell by cell, in place.
+
+    (R, Ra) hold what has arrived at each cell, before the cell's own half step. Visiting order:
+    slices along +d (``forward``) or -d; in each slice the bands of ``band_rows`` rows of u one
+    after the other (the kernel runs them in parallel: they touch disjoint rows), rows and
+    columns increasing, or decreasing if ``flip``. A side part that crosses into another band
+    waits until the end of the sweep. Cells whose pending energy is <= w_min keep it.
+    Returns the energy still pending.
+    """
+    n0, n1, n2 = R.shape
+    edges = list(range(0, n1, band_rows)) + [n1]
+    if len(edges) > 2 and edges[-1] - edges[-2] < 2:
+        edges.pop(-2)
+    later = []                                  # (k, i, j, e, e*a) crossing a band edge
     for k in (range(n0) if forward else range(n0 - 1, -1, -1)):
-        w, wa = R[k].astype(np.float64), Ra[k].astype(np.float64)
-        R[k] = 0.0
-        Ra[k] = 0.0
-        phi[k] += w * inv_area
-        phia[k] += wa * inv_area
-        (ef, mf), (es, ms), (eb, mb) = split_exact(w, wa, rule)
-        th, dh = Th[k].astype(np.float64), Dh[k].astype(np.float64)
-        for kn, e, m, slot in ((k + 1, ef, mf, TRANSMITTED), (k - 1, eb, mb, REFLECTED)):
-            if 0 <= kn < n0:
-                T = th * Th[kn]
-                R[kn] += e * T
-                Ra[kn] += e * m * T * dh * Dh[kn]
-                tally[ABSORBED] += np.sum(e * (1 - T))
-            else:
-                tally[slot] += np.sum(e * th)
-                tally[ABSORBED] += np.sum(e * (1 - th))
-        for axis in (0, 1):
-            for step in (1, -1):
-                e_in, ea_in = _move(es, ms, th, dh, axis, step, periodic, tally, SIDE_ESCAPED)
-                R[k] += e_in
-                Ra[k] += ea_in
+        for b in range(len(edges) - 1):
+            rows = range(edges[b], edges[b + 1])
+            for i in (reversed(rows) if flip else rows):
+                for j in (range(n2 - 1, -1, -1) if flip else range(n2)):
+                    if R[k, i, j] <= w_min:
+                        continue
+                    th, dh = float(Th[k, i, j]), float(Dh[k, i, j])
+                    w = R[k, i, j] * th
+                    wa = Ra[k, i, j] * th * dh
+                    tally[ABSORBED] += R[k, i, j] * (1 - th) + w * (1 - th)
+                    R[k, i, j] = Ra[k, i, j] = 0.0
+                    phi[k, i, j] += w * inv_area
+                    phia[k, i, j] += wa * inv_area
+                    (ef, mf), (es, ms), (eb, mb) = split_exact(w, wa, rule)
+                    for kn, e, m, slot in ((k + 1, ef, mf, TRANSMITTED), (k - 1, eb, mb, REFLECTED)):
+                        if 0 <= kn < n0:
+                            R[kn, i, j] += e * th
+                            Ra[kn, i, j] += e * m * th * dh
+                        else:
+                            tally[slot] += e * th
+                    for di, dj in ((0, -1), (0, 1), (-1, 0), (1, 0)):
+                        ii, jj = i + di, j + dj
+                        if not (0 <= ii < n1 and 0 <= jj < n2) and not periodic:
+                            tally[SIDE_ESCAPED] += es * th
+                            continue
+                        part = (es * th, es * ms * th * dh)
+                        crosses = not edges[b] <= ii < edges[b + 1]   # before wrapping
+                        ii, jj = ii % n1, jj % n2
+                        if crosses:
+                            later.append((k, ii, jj) + part)
+                        else:
+                            R[k, ii, jj] += part[0]
+                            Ra[k, ii, jj] += part[1]
+    for k, i, j, e, ea in later:
+        R[k, i, j] += e
+        Ra[k, i, j] += ea
     return float(R.sum(dtype=np.float64))
 
 
