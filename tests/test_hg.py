@@ -71,7 +71,8 @@ G_NORM = (-0.95, -0.5, 0.0, 0.3, 0.877, 0.99)
 def test_f_hg_matches_the_formula():
     mu = np.linspace(-1, 1, 41)
     for g in (-0.9, -1e-4, 0.0, 1e-9, 0.5, 0.99):
-        np.testing.assert_allclose(hg.f_hg(mu, g), hg_density(mu, g), rtol=1e-13)
+        # hg.py evaluates 1 + g^2 - 2 g mu in a cancellation-free form: equal to rounding
+        np.testing.assert_allclose(hg.f_hg(mu, g), hg_density(mu, g), rtol=1e-10)
 
 
 @pytest.mark.parametrize("g", G_NORM)
@@ -121,8 +122,7 @@ def test_F_hg_monotone_and_bounded(g):
     F = np.asarray(hg.F_hg(mu, g))
     assert np.all(np.isfinite(F))
     assert np.all(np.diff(F) >= -1e-15)
-    # the |g| = 0.999 lobe carries a ~4e-11 rounding excess at mu = 1 (see the xfail below)
-    tol = 1e-9 if abs(g) == 0.999 else 1e-12
+    tol = 1e-12
     assert F.min() >= 0.0 and F.max() <= 1 / (2 * np.pi) * (1 + tol)
     assert hg.F_hg(-1.0, g) == pytest.approx(0.0, abs=1e-15)
     assert 2 * np.pi * hg.F_hg(1.0, g) == pytest.approx(1.0, rel=tol)
@@ -131,13 +131,7 @@ def test_F_hg_monotone_and_bounded(g):
 NEAR_ONE = 1 - 1e-7
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "precision loss for near-collimated lobes: hg.py computes d = 1 + g^2 - 2 g mu, which cancels "
-    "catastrophically at mu = sign(g) when |g| -> 1 (relative error ~ eps / (1 - |g|)^2). For "
-    "g = 1 - 1e-7: 2 pi F_hg(1, g) = 1.0004, first_moment(1, g) - g = 4e-4, f_hg(1, g) off by "
-    "1.2e-3 (mirror images for g = -(1 - 1e-7)). A stable form is d = (1 - g)^2 + 2 g (1 - mu) "
-    "for g >= 0 and (1 + g)^2 - 2 g (1 + mu) for g < 0."))
-@pytest.mark.parametrize("g", (NEAR_ONE, -NEAR_ONE))
+@pytest.mark.parametrize("g", [NEAR_ONE, -NEAR_ONE])
 def test_near_collimated_lobes_keep_normalisation_and_peak(g):
     peak = np.sign(g)
     exact_peak = (1 + abs(g)) / (4 * np.pi * (1 - abs(g)) ** 2)     # f_hg at mu = sign(g)
@@ -174,7 +168,7 @@ def test_first_moment_is_the_integral_of_mu_f(g):
 
 @pytest.mark.parametrize("g", G_MOM)
 def test_first_moment_full_range_is_g(g):
-    tol = 1e-9 if abs(g) >= 0.999 else 1e-11     # ~4e-11 rounding at |g| = 0.999 (xfail above)
+    tol = 1e-11
     assert hg.first_moment(1.0, g) == pytest.approx(g, abs=tol)
     assert hg.first_moment(-1.0, g) == pytest.approx(0.0, abs=tol)
 
@@ -292,12 +286,6 @@ def test_conditional_mean_cosines_mirror_symmetry():
     np.testing.assert_allclose(ms, -ms2, atol=1e-9)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "conditional_mean_cosines(-1)[0] = 0.848028 but the a -> -1 limit (the mirror of "
-    "conditional_mean_cosines(1)[2] = -0.847759) is 0.847759: at the clipped a = -(1 - 1e-6) "
-    "m_front = (a - first_moment(c, a)) / front divides the ~1e-11 rounding error of "
-    "first_moment's closed form (its (1 + g + g^2) / (1 + g) term is ~1e6 there) by "
-    "front ~ 4e-8. The split table's row a = -1 carries it."))
 def test_conditional_mean_cosines_mirror_symmetry_at_collimated_ends():
     mf_minus = hg.conditional_mean_cosines(-1.0)[0]
     mb_plus = hg.conditional_mean_cosines(1.0)[2]

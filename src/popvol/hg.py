@@ -15,11 +15,17 @@ _SMALL_G = 0.01                 # below this |g| the first moment uses its Legen
 _NEAR_ONE = 1e-6                # |a| within this of 1: conditional means take their limit
 
 
+def _denominator(mu, g):
+    """1 + g^2 - 2 g mu without cancellation near mu = sign(g), |g| -> 1:
+    (1 - g)^2 + 2 g (1 - mu) for g >= 0, (1 + g)^2 - 2 g (1 + mu) for g < 0 (both >= 0)."""
+    return np.where(g >= 0, (1.0 - g) ** 2 + 2.0 * g * (1.0 - mu), (1.0 + g) ** 2 - 2.0 * g * (1.0 + mu))
+
+
 def f_hg(mu, g):
     """HG phase function per steradian, supplement Eq. 1:
     f = (1 - g^2) / (4 pi (1 + g^2 - 2 g mu)^(3/2)), for |g| < 1."""
     mu, g = np.asarray(mu, np.float64), np.asarray(g, np.float64)
-    d = 1.0 + g * g - 2.0 * g * mu
+    d = _denominator(mu, g)
     return (1.0 - g * g) / (4.0 * np.pi * d * np.sqrt(d))
 
 
@@ -32,7 +38,7 @@ def F_hg(mu, g):
     exact, stable at g -> 0 (F -> (1 + mu) / 4 pi), for negative g and at |g| = 1 (delta lobes).
     """
     mu, g = np.broadcast_arrays(np.asarray(mu, np.float64), np.asarray(g, np.float64))
-    s = np.sqrt(np.maximum(1.0 + g * g - 2.0 * g * mu, 0.0))
+    s = np.sqrt(np.maximum(_denominator(mu, g), 0.0))
     den = s * (1.0 + g + s)
     with np.errstate(divide="ignore", invalid="ignore"):
         two_pi_F = np.where(den > 0, (1.0 - g) * (1.0 + mu) / np.where(den > 0, den, 1.0), 0.0)
@@ -65,10 +71,31 @@ def first_moment(mu, g):
     if big.any():
         m = mu[big]
         gg = np.clip(g[big], -1 + 1e-12, 1 - 1e-12)
-        s = np.sqrt(np.maximum(1.0 + gg * gg - 2.0 * gg * m, 1e-300))
+        s = np.sqrt(np.maximum(_denominator(m, gg), 1e-300))
         val = (1 - gg * gg) / (2 * gg * gg) * ((1 + gg * gg - gg * m) / s - (1 + gg + gg * gg) / (1 + gg))
         out[big] = val
     return out if out.ndim else float(out)
+
+
+def upper_tail(mu, g):
+    """2 pi int_mu^1 f_hg dmu' = 1 - 2 pi F_hg(mu, g), without the cancellation of that
+    difference when the tail is tiny (g -> -1): with s as in :func:`F_hg`,
+    s - (1 - g) = 2 g (1 - mu) / (s + 1 - g) gives (1 + g)(1 - mu) / (s (s + 1 - g))."""
+    mu, g = np.broadcast_arrays(np.asarray(mu, np.float64), np.asarray(g, np.float64))
+    s = np.sqrt(np.maximum(_denominator(mu, g), 0.0))
+    den = s * (s + 1.0 - g)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(den > 0, (1.0 + g) * (1.0 - mu) / np.where(den > 0, den, 1.0), 0.0)
+    out = np.where((den == 0) & (mu <= -1.0), 1.0, out)     # the delta lobe g = -1
+    return out if out.ndim else float(out)
+
+
+def _upper_first_moment(mu, g):
+    """2 pi int_mu^1 mu' f_hg dmu' for |g| >= 0.01 as the difference of the antiderivative of
+    :func:`first_moment` between mu and 1: its bracket is O(1), so this stays accurate when the
+    tail is tiny (g -> -1), where g - first_moment(mu, g) cancels."""
+    s = np.sqrt(np.maximum(_denominator(mu, g), 1e-300))
+    return (1 - g * g) / (2 * g * g) * ((1 + g * g - g) / (1 - g) - (1 + g * g - g * mu) / s)
 
 
 def split_fractions(a):
@@ -78,7 +105,7 @@ def split_fractions(a):
     front + 4 side + back = 1 for every a in [-1, 1] (supplement Eq. 8)."""
     a = np.asarray(a, np.float64)
     c = COS_QUARTER_PI
-    front = 1.0 - 2 * np.pi * F_hg(c, a)
+    front = np.asarray(upper_tail(c, a))
     back = 2 * np.pi * F_hg(-c, a)
     side = (1.0 - front - back) / 4.0
     return front, side, back
@@ -97,7 +124,8 @@ def conditional_mean_cosines(a):
     c = COS_QUARTER_PI
     front, side, back = split_fractions(a)
     m_c, m_mc = first_moment(c, a), first_moment(-c, a)
-    m_front = (a - m_c) / front          # first_moment(1, a) = a
+    # first_moment(1, a) = a; for a -> -1 the tail is computed directly (no cancellation)
+    m_front = np.where(a < -_SMALL_G, _upper_first_moment(c, np.minimum(a, -_SMALL_G)), a - m_c) / front
     m_side = (m_c - m_mc) / (4 * side)
     m_back = m_mc / back
     # a collimated lobe (a = +-1) keeps exactly +-1: its populated slice is a delta
@@ -110,7 +138,7 @@ def sample_hg(g, u):
     """mu distributed as HG_g for u uniform in [0, 1) (inverse of F_hg)."""
     g, u = np.broadcast_arrays(np.asarray(g, np.float64), np.asarray(u, np.float64))
     small = np.abs(g) < 1e-6
-    gs = np.where(small, 1.0, g)
+    gs = np.where(small, 0.5, g)       # any |g| > 0 (the small-g branch is discarded)
     t = (1 - gs * gs) / (1 - gs + 2 * gs * u)
     mu = np.where(small, 2 * u - 1, (1 + gs * gs - t * t) / (2 * gs))
     mu = np.clip(mu, -1.0, 1.0)

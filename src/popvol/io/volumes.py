@@ -48,11 +48,16 @@ def validate_density(density, source: str, field: str = "density") -> np.ndarray
 def _vec3(value, source: str, field: str, default: float) -> np.ndarray:
     if value is None:
         return np.full(3, default, np.float64)
-    v = np.asarray(value, np.float64).reshape(-1)
+    try:
+        v = np.asarray(value, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        v = np.full(2, np.nan)      # not numbers: reported below
     if v.size == 1:
         v = np.repeat(v, 3)
     if v.size != 3 or not np.all(np.isfinite(v)):
-        raise PopvolError(f"{source}: {field} must be 1 or 3 finite numbers, got {value!r}")
+        shown = " ".join(str(np.asarray(value)).split())      # one line, whatever its shape
+        raise PopvolError(f"{source}: {field} must be 1 or 3 finite numbers, got {shown[:80]} "
+                          f"(shape {np.shape(value)})")
     return v
 
 
@@ -62,14 +67,18 @@ def read_npz(path, grid: str | None = None) -> VolumeData:
     path = Path(path)
     key = grid or "density"
     try:
-        with np.load(path, allow_pickle=False) as z:
+        # open the file ourselves: np.load leaks its handle when it rejects a file
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
             if key not in z.files:
                 raise PopvolError(f"{path}: no array named {key!r}; arrays in the file: {', '.join(z.files) or '(none)'}")
             density = z[key]
             voxel = z["voxel_size"] if "voxel_size" in z.files else None
             origin = z["world_of_ijk_min"] if "world_of_ijk_min" in z.files else None
-    except (OSError, ValueError, zipfile.BadZipFile) as e:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise PopvolError(f"{path}: cannot read as .npz ({e})") from None
+    except (TypeError, AttributeError):     # np.load gave a plain array: .npy content
+        raise PopvolError(f"{path}: holds a single .npy array, not an .npz archive; save it with "
+                          f"numpy.savez(path, density=array)") from None
     voxel = _vec3(voxel, str(path), "voxel_size", 1.0)
     if np.any(voxel <= 0):
         raise PopvolError(f"{path}: voxel_size = {voxel.tolist()} must be > 0")
