@@ -24,7 +24,7 @@ DECAYS = ("poisson", "paper")
 
 @dataclass
 class Method:
-    """How the light is propagated and the image rendered (see docs/METHOD_OPTIONS.md).
+    """How the light is propagated and the image rendered (see docs/SCENE.md).
 
     resolution: cells along the longest side of each light's propagation domain.
     solver: "sweep" (Gauss-Seidel sweeps along the light, fast) or "jacobi" (wavefront iteration,
@@ -277,14 +277,15 @@ def _choice(v, name: str, src: str, allowed) -> str:
     return v
 
 
-#: The built-in demo: the procedural cumulus lit by a low sun, seen against a blue sky.
+#: The built-in demo: the procedural cumulus lit by a sun behind it to the right, seen against a
+#: blue sky.
 DEMO_SCENE = {
     "medium": {"type": "procedural", "resolution": 96, "seed": 7, "extent": 2.0,
                "scale": 12.0, "albedo": 0.99, "g": 0.85},
-    "lights": [{"type": "directional", "direction": [-0.55, -0.55, -0.63],
+    "lights": [{"type": "directional", "direction": [-0.8, -0.45, 0.2],
                 "irradiance": [3.0, 2.9, 2.7]}],
     "background": {"type": "constant", "radiance": [0.30, 0.45, 0.75]},
-    "camera": {"origin": [0.0, 0.9, 3.6], "target": [0.0, 0.55, 0.0], "fov": 40.0,
+    "camera": {"origin": [0.0, 0.7, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0,
                "width": 640, "height": 360},
-    "method": {},
+    "method": {"exposure": 0.5},
 }

@@ -1,0 +1,35 @@
+"""Regenerate the figures in docs/figures (run from the repository root):
+
+    python scripts/make_figures.py
+
+- supplement_fig1.png: f_hg and 2 pi F_hg for g = 0, 0.5, 0.9 (supplement Fig. 1);
+- demo.png: the built-in demo scene at 480x270 (what `popvol render -o cloud.png` draws);
+- wdas_sun.png: examples/wdas_sun.toml at 480x270, if ../shared data is beside the checkout.
+"""
+from pathlib import Path
+
+import popvol
+from popvol.hg import plot_supplement_figure
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs" / "figures"
+
+
+def main():
+    OUT.mkdir(parents=True, exist_ok=True)
+    plot_supplement_figure(OUT / "supplement_fig1.png")
+    print(OUT / "supplement_fig1.png")
+    scenes = {"demo.png": None, "wdas_sun.png": ROOT / "examples" / "wdas_sun.toml"}
+    for name, path in scenes.items():
+        try:
+            scene = popvol.load_scene(path, width=480, height=270)
+        except popvol.PopvolError as e:
+            print(f"skipped {name}: {e}")
+            continue
+        image = popvol.render(scene, popvol.solve(scene))
+        popvol.write_image(OUT / name, image, scene.method.exposure)
+        print(OUT / name)
+
+
+if __name__ == "__main__":
+    main()
