@@ -19,9 +19,10 @@ import numpy as np
 from .errors import PopvolError
 from .medium import Medium
 
-#: Working-set bytes per domain cell: sigma_t, sigma_s, g (float32) are resampled, then the
-#: solver holds Th, Dh, in-flight W and W*a, accumulated phi and phi*a, plus slack.
-BYTES_PER_DOMAIN_CELL = 4 * 10
+#: Working-set bytes per domain cell (float32 arrays): the solvers hold Th, Dh, in-flight W and
+#: W*a, accumulated phi and phi*a; Jacobi adds its six outgoing parts (the sweep only small
+#: halos). sigma_t, sigma_s and g exist while Th and Dh are computed. Sized for Jacobi.
+BYTES_PER_DOMAIN_CELL = 4 * 14
 
 
 def light_frame(direction: np.ndarray) -> np.ndarray:
