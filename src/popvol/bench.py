@@ -4,12 +4,13 @@
   64^3 and 128^3 (a fixed number of iterations, after a warm-up that compiles the kernels),
   and the same for a streaming kernel with the sweep's memory traffic but no arithmetic: the
   ratio sweep / stream says how close the solver is to this machine's memory bandwidth;
-- render: camera samples (pixels x spp) per second at 640x360;
+- render: camera samples (pixels x spp) per second at 640x360, on the same n^3 demo clouds;
 - end to end: the demo scene (load, propagate, render) and, if ../shared data is present, the
   WDAS cloud lit by the sun (examples/wdas_sun.toml).
 """
 from __future__ import annotations
 
+import copy
 import os
 import platform
 import statistics
@@ -22,7 +23,7 @@ import numpy as np
 from .domains import directional_domain
 from .propagate import medium_factors, propagate, resample_medium, solve
 from .render import render
-from .scene import load_scene
+from .scene import DEMO_SCENE, load_scene, scene_from_dict
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -51,8 +52,14 @@ def _time(fn, repeat):
     return statistics.median(times)
 
 
-def bench_propagation(resolution: int, repeat: int) -> dict:
-    scene = load_scene()
+def bench_propagation(resolution: int, repeat: int, width=640, height=360) -> dict:
+    """The demo cloud as an n^3 problem: procedural medium with n voxels across, light domain of
+    n cells along its longest side; propagation and render throughput."""
+    data = copy.deepcopy(DEMO_SCENE)
+    data["medium"]["resolution"] = resolution
+    data["method"]["resolution"] = resolution
+    data["camera"].update(width=width, height=height)
+    scene = scene_from_dict(data, source=f"<demo cloud at {resolution}^3>")
     light = scene.lights[0]
     dom = directional_domain(scene.medium, light.direction, resolution)
     sigma_t, sigma_s, g = resample_medium(scene.medium, dom)
@@ -71,6 +78,12 @@ def bench_propagation(resolution: int, repeat: int) -> dict:
     out["stream_cells_per_s"] = dom.n_cells / t
     out["sweep_over_stream"] = out["sweep_cell_updates_per_s"] / out["stream_cells_per_s"]
     out["sweep_over_jacobi"] = out["sweep_cell_updates_per_s"] / out["jacobi_cell_updates_per_s"]
+    solution = solve(scene)
+    render(scene, solution)                                   # compile
+    t = _time(lambda: render(scene, solution), repeat)
+    out["medium_shape"] = list(scene.medium.shape)
+    out["render_pixels"] = [width, height]
+    out["render_camera_samples_per_s"] = width * height * scene.method.spp / t
     return out
 
 
