@@ -1,4 +1,4 @@
-"""Command line: ``popvol render``, ``popvol bench``, ``popvol hg-figure``.
+"""Command line: ``popvol render``, ``reference``, ``compare``, ``bench``, ``hg-figure``.
 
 Bad input ends with one line ``popvol: error: ...`` on stderr and exit status 2, never a
 traceback.
@@ -119,6 +119,82 @@ def hg_figure(output):
     _check_writable(output, "-o/--output")
     plot_supplement_figure(output)
     click.echo(output)
+
+
+@cli.command()
+@click.argument("scene", required=False, type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Reference image (.exr).")
+@click.option("--spp", type=int, default=256, show_default=True, help="Samples per pixel to add.")
+@click.option("--passes", type=int, default=4, show_default=True, help="Passes to split them into (>= 2 for a noise estimate).")
+@click.option("--variant", type=click.Choice(["scalar_rgb", "llvm_ad_rgb"]), default="scalar_rgb", show_default=True)
+@click.option("--max-depth", type=int, default=1024, show_default=True, help="Longest light path (volpath).")
+@click.option("--width", type=int, help="Image width (overrides the scene).")
+@click.option("--height", type=int, help="Image height (overrides the scene).")
+@click.option("--new", is_flag=True, help="Start over instead of adding to an existing reference.")
+def reference(scene, output, spp, passes, variant, max_depth, width, height, new):
+    """Render an unbiased reference of SCENE with Mitsuba 3 (volpath), adding to OUTPUT if it exists."""
+    from .reference import render_reference
+    from .scene import load_scene
+    if Path(output).suffix.lower() != ".exr":
+        raise PopvolError(f"-o/--output {output}: a reference is stored as .exr")
+    _check_writable(output, "-o/--output")
+    sc = load_scene(scene, width=width, height=height)
+    with _progress() as bar:
+        task = bar.add_task("Mitsuba passes", total=passes, info=f"{spp} spp, {variant}")
+        ref = render_reference(sc, output, spp, variant, passes, max_depth, resume=not new,
+                               progress=lambda p, n: bar.update(task, completed=p))
+    noise = ref.noise_relmse()
+    click.echo(f"{output}: {sc.camera.width}x{sc.camera.height}, {ref.spp} spp in {ref.passes} passes, "
+               f"{ref.meta['seconds']:.1f} s of Mitsuba" +
+               (f", noise relMSE {noise:.2g}" if noise is not None else ""))
+
+
+@cli.command()
+@click.argument("scene", required=False, type=click.Path(dir_okay=False))
+@click.option("--reference", "ref_path", required=True, type=click.Path(dir_okay=False), help="Reference .exr (from popvol reference).")
+@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write the metrics as JSON.")
+@click.option("--figure", type=click.Path(dir_okay=False), help="Write popvol | reference | error map as PNG.")
+@click.option("--resolution", type=int, help="Cells along the longest side of each light domain.")
+@click.option("--solver", type=click.Choice(["sweep", "jacobi"]))
+@click.option("--rule", type=click.Choice(["moment", "paper"]))
+@click.option("--decay", type=click.Choice(["poisson", "paper"]))
+@click.option("--spp", type=int, help="Jittered samples per pixel of the popvol image.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also write popvol's image (.png/.exr).")
+def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, spp, output):
+    """Render SCENE with popvol and measure it against a reference image."""
+    from . import metrics
+    from .io.images import write_image
+    from .propagate import solve
+    from .reference import load_reference
+    from .render import render as render_image
+    from .scene import load_scene
+    for path, opt in ((json_out, "--json"), (figure, "--figure"), (output, "-o/--output")):
+        if path:
+            _check_writable(path, opt)
+    ref = load_reference(ref_path)
+    h, w = ref.image.shape[:2]
+    sc = load_scene(scene, width=w, height=h, resolution=resolution, solver=solver, rule=rule,
+                    decay=decay, spp=spp)
+    t0 = time.perf_counter()
+    solution = solve(sc)
+    img = render_image(sc, solution)
+    seconds = time.perf_counter() - t0
+    res = {"scene": sc.source, "reference": str(ref_path), "reference_spp": ref.spp,
+           "reference_noise_relmse": ref.noise_relmse(), "method": vars(sc.method),
+           "popvol_seconds": seconds, "solve_seconds": solution.seconds, **metrics.compare(img, ref.image)}
+    if json_out:
+        Path(json_out).write_text(json.dumps(res, indent=2))
+    if figure:
+        metrics.comparison_figure(figure, img, ref.image, sc.method.exposure,
+                                  f"{Path(sc.source).name}: {sc.method.rule} + {sc.method.decay}, "
+                                  f"{sc.method.resolution} cells, reference {ref.spp} spp")
+    if output:
+        write_image(output, img, sc.method.exposure)
+    noise = res["reference_noise_relmse"]
+    flip = res["flip"]
+    click.echo(f"relMSE {res['relmse']:.4g}  RMSE {res['rmse']:.4g}  brightness x{res['brightness_ratio']:.3f}  "
+               f"SSIM {res['ssim']:.3f}  FLIP {'n/a' if flip is None else f'{flip:.3f}'}  "
+               f"reference noise {'n/a' if noise is None else f'{noise:.2g}'}  popvol {seconds:.2f} s")
 
 
 def _check_writable(path: str, option: str) -> None:

@@ -1,0 +1,227 @@
+"""The unbiased reference: any popvol scene as the same scene for Mitsuba 3, rendered in passes.
+
+Conventions matched (each checked by tests/test_reference.py against popvol's own renderer on an
+empty, an absorbing-only and an optically thin medium):
+
+- Axis order: popvol's density is indexed [x, y, z]; Mitsuba's ``VolumeGrid`` takes an array
+  [z, y, x, channel] (x fastest in memory, as in .vol files), so the array is transposed.
+- Voxel centres vs cell corners: both put the grid's voxels as CELLS filling the medium's box
+  (``Medium.bounds``), values at cell centres, trilinear in between and clamped to the edge in
+  the outer half cell. The ``gridvolume``'s unit cube is mapped onto that box.
+- The medium's boundary is a ``cube`` with a ``null`` BSDF over the same box, ``heterogeneous``
+  interior with sigma_t = scale * density, a constant albedo and an ``hg`` phase with the same g
+  (g > 0 forward in both).
+- Lights: a popvol directional light's ``direction`` is the direction the light travels, as
+  Mitsuba's ``directional`` emitter; ``irradiance`` is on a plane facing the light in both.
+- Background: a ``constant`` emitter with the background radiance. In Mitsuba it also lights the
+  medium, as a sky would; popvol's renderer does not (until environment lights exist), so scenes
+  meant to measure popvol's accuracy use a black background, or a background that is a light.
+- Camera: ``perspective`` sensor, ``fov_axis = "y"`` (popvol's fov is vertical), ``look_at`` with
+  the same origin, target and up; Mitsuba's image x axis runs along -(camera x) of its look-at
+  frame, which is popvol's "right" (tests check the orientation with an off-centre blob).
+- Film: ``hdrfilm`` with a ``box`` reconstruction filter (popvol jitters uniformly in the pixel),
+  linear RGB.
+- Integrator: ``volpath`` with ``max_depth`` (default 1024) and Russian roulette from depth 32.
+
+Reference images are accumulated over passes: ``REF.exr`` holds the mean, ``REF.exr.json`` the
+sample count and provenance, ``REF.exr.npz`` the per-pixel sum and sum of squares of the pass
+means (float64), from which the reference's own noise is estimated.
+"""
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import PopvolError
+from .scene import Scene
+
+VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
+
+
+def import_mitsuba(variant: str = "scalar_rgb"):
+    """``mitsuba`` with ``variant`` set, or a PopvolError saying how to get it."""
+    if variant not in VARIANTS:
+        raise PopvolError(f"--variant {variant!r}; allowed: {', '.join(VARIANTS)}")
+    if variant.startswith("llvm") and "DRJIT_LIBLLVM_PATH" not in os.environ:
+        # Dr.Jit needs LLVM >= 16 (it emits fminimum); Debian bookworm's default libLLVM-14/15
+        # cannot select it. Prefer the newest system libLLVM.
+        found = sorted(glob.glob("/usr/lib/*/libLLVM*.so*") + glob.glob("/usr/lib/libLLVM*.so*"),
+                       key=_llvm_version)
+        if found and _llvm_version(found[-1]) >= 16:
+            os.environ["DRJIT_LIBLLVM_PATH"] = found[-1]
+    try:
+        import mitsuba as mi
+    except ImportError:
+        raise PopvolError("the reference renderer needs Mitsuba 3: pip install 'popvol[reference]' "
+                          "(or pip install mitsuba)") from None
+    try:
+        mi.set_variant(variant)
+    except (ImportError, AttributeError, RuntimeError) as e:
+        hint = (" (llvm_ad_rgb needs a system libLLVM >= 16, e.g. apt-get install libllvm19, or "
+                "DRJIT_LIBLLVM_PATH pointing at it)" if variant.startswith("llvm") else "")
+        raise PopvolError(f"Mitsuba variant {variant!r} is not available: {e}{hint}") from None
+    return mi
+
+
+def _llvm_version(path: str) -> int:
+    digits = "".join(c if c.isdigit() else " " for c in Path(path).name).split()
+    return int(digits[0]) if digits else 0
+
+
+def mitsuba_dict(scene: Scene, mi, max_depth: int = 1024, spp: int = 16) -> dict:
+    """The Mitsuba 3 scene dict of ``scene`` (``mi`` = the imported module with a variant set)."""
+    med, cam = scene.medium, scene.camera
+    lo, hi = med.bounds
+    T = mi.ScalarTransform4f
+    grid = np.ascontiguousarray(med.density.transpose(2, 1, 0)[..., None], np.float32)
+    medium = {
+        "type": "heterogeneous",
+        "albedo": float(med.albedo),
+        "scale": float(med.scale),
+        "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(grid), "filter_type": "trilinear",
+                    "to_world": T().translate(lo.tolist()).scale((hi - lo).tolist())},
+        "phase": {"type": "hg", "g": float(med.g)},
+    }
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    extent = float(np.linalg.norm(hi - lo) + np.linalg.norm(cam.origin - centre))
+    fwd, right, up = cam.basis()
+    d = {
+        "type": "scene",
+        "integrator": {"type": "volpath", "max_depth": int(max_depth), "rr_depth": 32},
+        "sensor": {
+            "type": "perspective", "fov": float(cam.fov), "fov_axis": "y",
+            "near_clip": 1e-4 * extent, "far_clip": 10.0 * extent,
+            "to_world": T().look_at(origin=cam.origin.tolist(), target=(cam.origin + fwd).tolist(),
+                                    up=up.tolist()),
+            "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
+                     "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+            "sampler": {"type": "independent", "sample_count": int(spp)},
+        },
+        "medium_boundary": {"type": "cube", "bsdf": {"type": "null"}, "interior": medium,
+                            "to_world": T().translate(centre.tolist()).scale(half.tolist())},
+    }
+    bg = np.asarray(scene.background, np.float64)
+    if np.any(bg > 0):
+        d["background"] = {"type": "constant", "radiance": {"type": "rgb", "value": bg.tolist()}}
+    for i, light in enumerate(scene.lights):
+        d[f"light_{i}"] = {"type": "directional", "direction": light.direction.tolist(),
+                           "irradiance": {"type": "rgb", "value": light.irradiance.tolist()}}
+    return d
+
+
+def scene_digest(scene: Scene) -> str:
+    """A short hash of everything that changes the reference image (not the popvol method)."""
+    h = hashlib.sha256()
+    med, cam = scene.medium, scene.camera
+    h.update(np.ascontiguousarray(med.density).tobytes())
+    for v in (med.voxel_size, med.origin, [med.scale, med.albedo, med.g], cam.origin, cam.target, cam.up,
+              [cam.fov, cam.width, cam.height], scene.background):
+        h.update(np.asarray(v, np.float64).tobytes())
+    for l in scene.lights:
+        h.update(np.concatenate([l.direction, l.irradiance]).astype(np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+@dataclass
+class Reference:
+    """A reference image and what is known about its noise."""
+
+    image: np.ndarray          # float32 (H, W, 3): mean of the passes
+    spp: int                   # samples per pixel in all
+    passes: int
+    variance: np.ndarray | None  # float64 (H, W, 3): variance of the mean (None with < 2 passes)
+    meta: dict
+
+    def noise_relmse(self, eps: float = 0.01) -> float | None:
+        """Expected relMSE of this reference against the truth, from its pass-to-pass variance."""
+        if self.variance is None:
+            return None
+        return float(np.mean(self.variance / (self.image.astype(np.float64) ** 2 + eps)))
+
+
+def _sidecars(path: Path) -> tuple[Path, Path]:
+    return path.with_name(path.name + ".json"), path.with_name(path.name + ".npz")
+
+
+def load_reference(path) -> Reference:
+    from .io.images import read_exr
+    path = Path(path)
+    if not path.is_file():
+        raise PopvolError(f"{path}: reference image not found")
+    image = read_exr(path)
+    meta_path, sums_path = _sidecars(path)
+    meta, variance, spp, passes = {}, None, 0, 1
+    if meta_path.is_file():
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (OSError, ValueError) as e:
+            raise PopvolError(f"{meta_path}: cannot read reference metadata ({e})") from None
+        spp, passes = int(meta.get("spp", 0)), int(meta.get("passes", 1))
+    if sums_path.is_file() and passes >= 2:
+        with np.load(sums_path) as z:
+            s, s2 = z["sum"], z["sumsq"]
+        mean = s / passes
+        variance = np.maximum(s2 / passes - mean ** 2, 0.0) / (passes - 1)
+    return Reference(image, spp, passes, variance, meta)
+
+
+def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb", passes: int = 4,
+                     max_depth: int = 1024, resume: bool = True, progress=None) -> Reference:
+    """Render ``spp`` more samples per pixel in ``passes`` passes and add them to ``output``.
+
+    With ``resume`` and an existing reference of the same scene (same digest), its passes are
+    kept and the new ones added; a reference of another scene is an error.
+    """
+    from .io.images import write_exr
+    output = Path(output)
+    if spp < 1 or passes < 1:
+        raise PopvolError(f"--spp = {spp} and --passes = {passes} must be >= 1")
+    passes = min(passes, spp)
+    meta_path, sums_path = _sidecars(output)
+    digest = scene_digest(scene)
+    s = s2 = None
+    done_passes = done_spp = 0
+    seconds = 0.0
+    if resume and output.exists():
+        if not (meta_path.is_file() and sums_path.is_file()):
+            raise PopvolError(f"{output}: exists without its {meta_path.name} / {sums_path.name}; "
+                              "remove it or choose another output to start a new reference")
+        meta = json.loads(meta_path.read_text())
+        if meta.get("scene_digest") != digest:
+            raise PopvolError(f"{output}: was rendered for another scene ({meta.get('scene')}); "
+                              "choose another output")
+        with np.load(sums_path) as z:
+            s, s2 = z["sum"].copy(), z["sumsq"].copy()
+        done_passes, done_spp = int(meta["passes"]), int(meta["spp"])
+        seconds = float(meta.get("seconds", 0.0))
+        if int(meta.get("spp_per_pass", 0)) != spp // passes:
+            raise PopvolError(f"{output}: has {meta.get('spp_per_pass')} samples per pass; resume "
+                              f"with --spp / --passes giving the same (now {spp // passes})")
+    mi = import_mitsuba(variant)
+    per_pass = spp // passes
+    mscene = mi.load_dict(mitsuba_dict(scene, mi, max_depth, per_pass))
+    for p in range(passes):
+        t0 = time.perf_counter()
+        img = np.asarray(mi.render(mscene, spp=per_pass, seed=done_passes + p), np.float64)[..., :3]
+        seconds += time.perf_counter() - t0
+        s = img if s is None else s + img
+        s2 = img ** 2 if s2 is None else s2 + img ** 2
+        if progress is not None:
+            progress(p + 1, passes)
+    n = done_passes + passes
+    mean = (s / n).astype(np.float32)
+    write_exr(output, mean)
+    np.savez(sums_path, sum=s, sumsq=s2)
+    meta = {"scene": scene.source, "scene_digest": digest, "spp": done_spp + per_pass * passes,
+            "passes": n, "spp_per_pass": per_pass, "variant": variant, "max_depth": max_depth,
+            "integrator": "volpath", "mitsuba": mi.__version__, "seconds": seconds,
+            "width": scene.camera.width, "height": scene.camera.height}
+    meta_path.write_text(json.dumps(meta, indent=2))
+    return load_reference(output)
