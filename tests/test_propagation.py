@@ -92,35 +92,46 @@ def random_state(rng, shape, signed=True):
 
 @pytest.mark.parametrize("rule", ["moment", "paper"])
 @pytest.mark.parametrize("periodic", [False, True])
-def test_jacobi_kernel_equals_numpy_twin(rule, periodic, rng):
+@pytest.mark.parametrize("handover", [-1.0, 0.4])
+def test_jacobi_kernel_equals_numpy_twin(rule, periodic, handover, rng):
     shape = (6, 5, 4)
     W, Wa, Th, Dh = random_state(rng, shape, signed=rule == "moment")
+    diffusive = rng.random(shape) < 0.7
     table = split_table()
     phi, phia = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
     parts = np.empty((6,) + shape, np.float32)
     W2, Wa2 = np.empty_like(W), np.empty_like(W)
     tally = np.zeros(4)
-    K.jacobi_send(W, Wa, Th, Dh, table, rule == "moment", periodic, 3.0, phi, phia, parts, tally)
+    Q = np.zeros((2,) + shape, np.float32)
+    K.jacobi_send(W, Wa, Th, Dh, table, rule == "moment", periodic, 3.0, phi, phia, parts, tally,
+                  handover, diffusive, Q)
     in_flight = K.jacobi_gather(parts, Th, Dh, periodic, W2, Wa2, tally)
 
-    phi_r, phia_r, tally_r = np.zeros(shape), np.zeros(shape), np.zeros(4)
-    W_r, Wa_r = ref.jacobi_step(W, Wa, Th, Dh, rule, periodic, 3.0, phi_r, phia_r, tally_r)
+    phi_r, phia_r, tally_r, Q_r = np.zeros(shape), np.zeros(shape), np.zeros(4), np.zeros((2,) + shape)
+    W_r, Wa_r = ref.jacobi_step(W, Wa, Th, Dh, rule, periodic, 3.0, phi_r, phia_r, tally_r, handover,
+                                diffusive, Q_r)
+    np.testing.assert_allclose(Q, Q_r, rtol=1e-6, atol=1e-7)
+    if handover > 0:
+        assert Q[0].sum() > 0.1 * W.sum()             # the hand-over happened
     np.testing.assert_allclose(W2, W_r, rtol=2e-5, atol=1e-7)
     np.testing.assert_allclose(Wa2, Wa_r, rtol=2e-5, atol=1e-7)
     np.testing.assert_allclose(phi, phi_r, rtol=1e-6)
     np.testing.assert_allclose(phia, phia_r, rtol=1e-6, atol=1e-7)
     np.testing.assert_allclose(tally, tally_r, rtol=2e-5, atol=1e-7)
     assert in_flight == pytest.approx(W_r.sum(), rel=2e-5)
-    # conservation of the step itself: what went in = what arrived + escaped + absorbed
-    assert W.sum(dtype=np.float64) == pytest.approx(W_r.sum() + tally_r.sum(), rel=1e-9)
+    # conservation of the step itself: what went in = what arrived + escaped + absorbed + handed over
+    assert W.sum(dtype=np.float64) == pytest.approx(W_r.sum() + tally_r.sum() + Q_r[0].sum(), rel=1e-9)
 
 
 @pytest.mark.parametrize("rule", ["moment", "paper"])
 @pytest.mark.parametrize("forward, flip", [(True, False), (False, True)])
 @pytest.mark.parametrize("periodic", [False, True])
 @pytest.mark.parametrize("shape", [(5, 6, 4), (4, 37, 5)])   # one band; three bands (16, 16, 5 rows)
-def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, rng):
+@pytest.mark.parametrize("handover", [-1.0, 0.4])
+def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, handover, rng):
     W, Wa, Th, Dh = random_state(rng, shape, signed=rule == "moment")
+    diffusive = rng.random(shape) < 0.7
+    Q, Q_r = np.zeros((2,) + shape, np.float32), np.zeros((2,) + shape)
     w_min = float(np.quantile(W, 0.4))       # some non-empty cells hold their packets back
     table = split_table()
     R, Ra = W.copy(), Wa.copy()
@@ -129,18 +140,19 @@ def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, rn
     halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
     tally_b, tally = np.zeros((len(bands) - 1, 4)), np.zeros(4)
     pending = K.sweep(R, Ra, Th, Dh, table, rule == "moment", periodic, forward, flip, w_min, 2.0, phi,
-                      phia, bands, halo, tally_b, tally)
+                      phia, bands, halo, tally_b, tally, handover, diffusive, Q)
 
     R_r, Ra_r = W.astype(np.float64), Wa.astype(np.float64)
     phi_r, phia_r, tally_r = np.zeros(shape), np.zeros(shape), np.zeros(4)
     pending_r = ref.sweep(R_r, Ra_r, Th, Dh, rule, periodic, forward, flip, w_min, 2.0, phi_r, phia_r,
-                          tally_r)
+                          tally_r, handover=handover, diffusive=diffusive, Q=Q_r)
+    np.testing.assert_allclose(Q, Q_r, rtol=5e-5, atol=1e-7)
     np.testing.assert_allclose(R, R_r, rtol=5e-5, atol=1e-7)
     np.testing.assert_allclose(Ra, Ra_r, rtol=5e-5, atol=1e-6)
     np.testing.assert_allclose(phi, phi_r, rtol=5e-5, atol=1e-7)
     np.testing.assert_allclose(tally, tally_r, rtol=5e-5, atol=1e-7)
     assert pending == pytest.approx(pending_r, rel=5e-5)
-    assert W.sum(dtype=np.float64) == pytest.approx(pending_r + tally_r.sum(), rel=1e-9)
+    assert W.sum(dtype=np.float64) == pytest.approx(pending_r + tally_r.sum() + Q_r[0].sum(), rel=1e-9)
 
 
 def test_split_table_matches_exact_hg():

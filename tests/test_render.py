@@ -114,9 +114,14 @@ def test_empty_medium_shows_the_background():
     np.testing.assert_allclose(img, np.broadcast_to(scene.background, img.shape), rtol=1e-6)
 
 
-def test_render_kernel_equals_numpy_twin():
+@pytest.mark.parametrize("isotropic", ["walk", "diffusion"])
+def test_render_kernel_equals_numpy_twin(isotropic):
     scene = blob_scene([0.3, -0.6, 0.74], w=12, h=8, peak_tau=2.0, albedo=0.8, g=0.5)
+    scene.method.isotropic = isotropic
+    scene.method.handover = 0.8
     sol = solve(scene)
+    if isotropic == "diffusion":
+        assert sol.phid.max() > 0 and np.abs(sol.flux).max() > 0
     img = render(scene, sol, jitter=False)
     for py in range(scene.camera.height):
         for px in range(scene.camera.width):

@@ -38,10 +38,11 @@ def cli():
 @click.option("--solver", type=click.Choice(["sweep", "jacobi"]), help="Propagation solver.")
 @click.option("--rule", type=click.Choice(["moment", "paper"]), help="Outgoing-anisotropy rule.")
 @click.option("--decay", type=click.Choice(["poisson", "paper"]), help="Anisotropy decay law.")
+@click.option("--isotropic", type=click.Choice(["walk", "diffusion"]), help="Isotropic stage: keep walking or diffusion solve.")
 @click.option("--spp", type=int, help="Jittered samples per pixel.")
 @click.option("--exposure", type=float, help="PNG exposure in stops.")
 @click.option("--stats", type=click.Path(dir_okay=False), help="Write timings, iterations and energy budget as JSON.")
-def render(scene, output, exr, width, height, resolution, solver, rule, decay, spp, exposure, stats):
+def render(scene, output, exr, width, height, resolution, solver, rule, decay, isotropic, spp, exposure, stats):
     """Render SCENE (a TOML file; the built-in demo cloud if omitted) to an image."""
     from .io.images import write_image
     from .propagate import solve
@@ -55,7 +56,7 @@ def render(scene, output, exr, width, height, resolution, solver, rule, decay, s
         _check_writable(stats, "--stats")
     t0 = time.perf_counter()
     sc = load_scene(scene, width=width, height=height, resolution=resolution, solver=solver,
-                    rule=rule, decay=decay, spp=spp, exposure=exposure)
+                    rule=rule, decay=decay, isotropic=isotropic, spp=spp, exposure=exposure)
     t_load = time.perf_counter() - t0
     tol = sc.method.tolerance
     with _progress() as bar:
@@ -93,7 +94,9 @@ def render(scene, output, exr, width, height, resolution, solver, rule, decay, s
     its = ", ".join(str(d["iterations"]) for d in info["domains"])
     click.echo(f"{output}: {sc.camera.width}x{sc.camera.height} in {seconds['total']:.2f} s "
                f"(load {t_load:.2f}, resample {seconds['resample']:.2f}, propagate {seconds['propagate']:.2f} "
-               f"[{sc.method.solver}, {its} iterations], render {t_render:.2f})")
+               f"[{sc.method.solver}, {its} iterations]"
+               + (f", diffusion {seconds['diffusion']:.2f}" if sc.method.isotropic == "diffusion" else "")
+               + f", render {t_render:.2f})")
 
 
 @cli.command()
@@ -158,9 +161,10 @@ def reference(scene, output, spp, passes, variant, max_depth, width, height, new
 @click.option("--solver", type=click.Choice(["sweep", "jacobi"]))
 @click.option("--rule", type=click.Choice(["moment", "paper"]))
 @click.option("--decay", type=click.Choice(["poisson", "paper"]))
+@click.option("--isotropic", type=click.Choice(["walk", "diffusion"]))
 @click.option("--spp", type=int, help="Jittered samples per pixel of the popvol image.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also write popvol's image (.png/.exr).")
-def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, spp, output):
+def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, isotropic, spp, output):
     """Render SCENE with popvol and measure it against a reference image."""
     from . import metrics
     from .io.images import write_image
@@ -174,7 +178,7 @@ def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, 
     ref = load_reference(ref_path)
     h, w = ref.image.shape[:2]
     sc = load_scene(scene, width=w, height=h, resolution=resolution, solver=solver, rule=rule,
-                    decay=decay, spp=spp)
+                    decay=decay, isotropic=isotropic, spp=spp)
     t0 = time.perf_counter()
     solution = solve(sc)
     img = render_image(sc, solution)
@@ -186,7 +190,8 @@ def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, 
         Path(json_out).write_text(json.dumps(res, indent=2))
     if figure:
         metrics.comparison_figure(figure, img, ref.image, sc.method.exposure,
-                                  f"{Path(sc.source).name}: {sc.method.rule} + {sc.method.decay}, "
+                                  f"{Path(sc.source).name}: {sc.method.rule} + {sc.method.decay} + "
+                                  f"{sc.method.isotropic}, "
                                   f"{sc.method.resolution} cells, reference {ref.spp} spp")
     if output:
         write_image(output, img, sc.method.exposure)

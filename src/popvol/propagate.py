@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import hg
+from .diffusion import solve_diffusion
 from .domains import DirectionalDomain, check_memory, directional_domain
 from .kernels import propagation as K
 from .kernels.sampling import domain_to_world, resample
@@ -71,10 +72,11 @@ class Budget:
     side: float = 0.0          # left through the 4 lateral faces
     absorbed: float = 0.0
     in_flight: float = 0.0     # still pending when the solver stopped
+    diffusion_leak: float = 0.0  # diffuse light that left the diffusion region into empty cells
 
     @property
     def escaped(self) -> float:
-        return self.reflected + self.transmitted + self.side
+        return self.reflected + self.transmitted + self.side + self.diffusion_leak
 
     @property
     def balance_error(self) -> float:
@@ -83,7 +85,7 @@ class Budget:
 
     def as_dict(self) -> dict:
         d = {k: float(getattr(self, k)) for k in ("injected", "reflected", "transmitted", "side",
-                                                   "absorbed", "in_flight")}
+                                                   "diffusion_leak", "absorbed", "in_flight")}
         d["escaped"] = self.escaped
         d["balance_error"] = self.balance_error
         return d
@@ -101,6 +103,8 @@ class PropagationResult:
     residual: float            # in-flight energy / injected energy when it stopped
     converged: bool
     seconds: float = 0.0
+    diffusion: object = None   # diffusion.DiffusionResult when the isotropic stage is "diffusion"
+    seconds_diffusion: float = 0.0
 
 
 def default_max_iterations(shape, solver: str) -> int:
@@ -111,7 +115,8 @@ def default_max_iterations(shape, solver: str) -> int:
 
 def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
               rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
-              max_iterations: int = 0, periodic: bool = False, progress=None) -> PropagationResult:
+              max_iterations: int = 0, periodic: bool = False, progress=None,
+              isotropic: str = "walk", handover: float = 0.5, medium=None) -> PropagationResult:
     """Propagate light injected into slice k = 0 of a domain until it has (almost) all left.
 
     Args:
@@ -125,6 +130,9 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
             (0 = automatic).
         periodic: wrap the lateral faces (an infinite slab); used by the slab tests.
         progress: optional callable(iteration, residual).
+        isotropic: "walk" (diffuse light keeps walking, the papers' POP) or "diffusion" (a packet
+            whose |a| < ``handover`` in a scattering cell leaves the walk for a diffusion solve,
+            see diffusion.py); ``medium`` = (sigma_t, sigma_s, g) of the domain is then needed.
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -138,6 +146,19 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
     phi = np.zeros(shape, np.float32)
     phia = np.zeros(shape, np.float32)
     budget = Budget(injected=float(np.sum(injection, dtype=np.float64)))
+    if isotropic == "diffusion":
+        if medium is None:
+            raise ValueError("isotropic = 'diffusion' needs medium = (sigma_t, sigma_s, g)")
+        if periodic:
+            raise ValueError("the diffusion stage has no periodic boundaries")
+        sigma_t, sigma_s, g = medium
+        diffusive = (sigma_s > 0) & (sigma_t > 0)
+        Q = np.zeros((2,) + shape, np.float32)
+        eps = float(handover)
+    else:
+        diffusive = np.zeros((1, 1, 1), np.bool_)
+        Q = np.zeros((2, 1, 1, 1), np.float32)
+        eps = -1.0
     tally = np.zeros(4)
     target = tolerance * budget.injected
     t0 = time.perf_counter()
@@ -151,7 +172,8 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
         in_flight = float(np.sum(W, dtype=np.float64))
         parts = np.empty((6,) + shape, np.float32)
         while in_flight > target and it < cap:
-            K.jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, parts, tally)
+            K.jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, parts, tally,
+                          eps, diffusive, Q)
             in_flight = K.jacobi_gather(parts, Th, Dh, periodic, W, Wa, tally)
             it += 1
             if progress is not None and it % 16 == 0:
@@ -172,7 +194,8 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
             w_min = SOUTHWELL_FRACTION * in_flight / Th.size
             # alternate +d / -d every sweep and the lateral order every second sweep
             in_flight = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
-                                w_min, inv_area, phi, phia, bands, halo, tally_b, tally)
+                                w_min, inv_area, phi, phia, bands, halo, tally_b, tally,
+                                eps, diffusive, Q)
             it += 1
             if progress is not None:
                 progress(it, in_flight / budget.injected)
@@ -181,8 +204,19 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
     budget.absorbed += float(tally[K.ABSORBED])
     budget.in_flight = in_flight
     residual = in_flight / max(budget.injected, 1e-300)
-    return PropagationResult(phi, phia, budget, it, it * int(np.prod(shape)), residual,
-                             in_flight <= target, seconds)
+    result = PropagationResult(phi, phia, budget, it, it * int(np.prod(shape)), residual,
+                               in_flight <= target, seconds)
+    if isotropic == "diffusion":
+        t1 = time.perf_counter()
+        d = solve_diffusion(Q[0], Q[1], sigma_t, sigma_s, g, h, rtol=0.1 * tolerance)
+        budget.absorbed += d.absorbed
+        budget.reflected += d.leaked[0]
+        budget.transmitted += d.leaked[1]
+        budget.side += d.leaked[2]
+        budget.diffusion_leak = d.leaked[3]
+        result.diffusion = d
+        result.seconds_diffusion = time.perf_counter() - t1
+    return result
 
 
 # ---------------------------------------------------------------------------------------------
@@ -202,7 +236,11 @@ class Solution:
     """Everything rendering needs: per-light fields on the medium's world grid.
 
     phi, phia: float32 (n_lights, n_channels, nx, ny, nz), per unit irradiance (grey media:
-    n_channels = 1; the renderer multiplies by each light's RGB irradiance).
+    n_channels = 1; the renderer multiplies by each light's RGB irradiance): the walk's lobe,
+    along each light's direction.
+    phid: float32 (n_lights, n_channels, nx, ny, nz), fluence of the diffuse light, and
+    flux: float32 (n_lights, 3, nx, ny, nz), its world-space flux vector J (isotropic stage
+    "diffusion"; zero-size arrays otherwise).
     """
 
     medium: Medium
@@ -212,6 +250,8 @@ class Solution:
     directions: np.ndarray     # float64 (n_lights, 3), direction each light travels
     irradiance: np.ndarray     # float64 (n_lights, 3)
     seconds: dict = field(default_factory=dict)
+    phid: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 1, 1, 1), np.float32))
+    flux: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 1, 1, 1), np.float32))
 
     def stats(self) -> dict:
         out = {"seconds": dict(self.seconds), "domains": []}
@@ -222,6 +262,8 @@ class Solution:
                 "cell_size": ds.domain.h, "iterations": r.iterations, "residual": r.residual,
                 "converged": r.converged, "cell_updates": r.cell_updates,
                 "seconds_resample": ds.seconds_resample, "seconds_propagate": r.seconds,
+                "seconds_diffusion": r.seconds_diffusion,
+                "diffusion_iterations": r.diffusion.iterations if r.diffusion else 0,
                 "budget_per_unit_irradiance": r.budget.as_dict()})
         return out
 
@@ -248,11 +290,14 @@ def solve_light(medium: Medium, light: DirectionalLight, method: Method, progres
     dom = directional_domain(medium, light.direction, method.resolution)
     sigma_t, sigma_s, g = resample_medium(medium, dom)
     Th, Dh = medium_factors(sigma_t, sigma_s, g, dom.h, method.decay)
+    diffusion = method.isotropic == "diffusion"
+    medium_arrays = (sigma_t, sigma_s, g) if diffusion else None
     del sigma_t, sigma_s, g
     t1 = time.perf_counter()
     injection = np.full(dom.shape[1:], dom.h * dom.h, np.float32)   # unit irradiance * area
     res = propagate(Th, Dh, injection, light.a0, dom.h, method.rule, method.solver,
-                    method.tolerance, method.max_iterations, progress=progress)
+                    method.tolerance, method.max_iterations, progress=progress,
+                    isotropic=method.isotropic, handover=method.handover, medium=medium_arrays)
     return DomainSolution(light, dom, res, t1 - t0)
 
 
@@ -264,8 +309,17 @@ def solve(scene: Scene, progress=None) -> Solution:
                  f"{'x'.join(map(str, med.shape))} grid")
     phi = np.empty((n, 1) + med.shape, np.float32)
     phia = np.empty_like(phi)
+    diffusion = scene.method.isotropic == "diffusion"
+    if diffusion:
+        check_memory(4 * n * med.density.size * 4, f"{med.source}: medium",
+                     f"diffusion fields of {n} light(s)")
+        phid = np.empty((n, 1) + med.shape, np.float32)
+        flux = np.empty((n, 3) + med.shape, np.float32)
+    else:
+        phid = np.zeros((0, 1, 1, 1, 1), np.float32)
+        flux = np.zeros((0, 3, 1, 1, 1), np.float32)
     sols = []
-    t_res = t_prop = t_fields = 0.0
+    t_res = t_prop = t_fields = t_diff = 0.0
     for i, light in enumerate(scene.lights):
         cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
         ds = solve_light(med, light, scene.method, cb)
@@ -273,11 +327,20 @@ def solve(scene: Scene, progress=None) -> Solution:
         d = ds.domain
         domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, 0])
         domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, 0])
+        if diffusion:
+            dr = ds.result.diffusion
+            domain_to_world(dr.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phid[i, 0])
+            for c in range(3):          # world component c of J = sum over domain axes
+                Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
+                domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, d.h,
+                                med.origin, med.voxel_size, flux[i, c])
         t_fields += time.perf_counter() - t0
         t_res += ds.seconds_resample
         t_prop += ds.result.seconds
+        t_diff += ds.result.seconds_diffusion
         sols.append(ds)
     dirs = np.array([l.direction for l in scene.lights])
     irr = np.array([l.irradiance for l in scene.lights])
     return Solution(med, sols, phi, phia, dirs, irr,
-                    {"resample": t_res, "propagate": t_prop, "fields": t_fields})
+                    {"resample": t_res, "propagate": t_prop, "diffusion": t_diff, "fields": t_fields},
+                    phid, flux)

@@ -26,7 +26,7 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
     step = float(m.step * med.voxel_size.min())
     out = np.zeros((cam.height, cam.width, 3), np.float32)
     render_kernel(med.density, float(med.scale), med.albedo_grid(), med.g_grid(), med.origin,
-                  med.voxel_size, lo, hi, solution.phi, solution.phia,
+                  med.voxel_size, lo, hi, solution.phi, solution.phia, solution.phid, solution.flux,
                   np.ascontiguousarray(solution.directions, np.float64),
                   np.ascontiguousarray(solution.irradiance, np.float64),
                   np.asarray(scene.background, np.float64), cam.origin, cam.basis(),

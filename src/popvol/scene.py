@@ -18,6 +18,7 @@ from .lights import DirectionalLight
 from .medium import Medium
 
 SOLVERS = ("sweep", "jacobi")
+ISOTROPIC = ("walk", "diffusion")
 RULES = ("moment", "paper")
 DECAYS = ("poisson", "paper")
 
@@ -32,6 +33,10 @@ class Method:
     rule: anisotropy carried by each outgoing part: "moment" (conditional mean cosine of its slice
         of the lobe, conserves the first angular moment) or "paper" (every part keeps +a).
     decay: anisotropy decay per step: "poisson" exp(-sigma_s s (1 - g)) or "paper" g^(sigma_s s).
+    isotropic: what happens to light whose lobe has spread: "walk" (it keeps walking cell by
+        cell, the papers' POP) or "diffusion" (it leaves the walk for a diffusion solve with the
+        physical coefficient 1 / (3 sigma_tr); see popvol/diffusion.py).
+    handover: with "diffusion", the |anisotropy| below which a packet is handed over.
     tolerance: stop when the energy still in flight is below tolerance * injected energy.
     max_iterations: cap on iterations (jacobi) or sweeps (sweep); 0 = automatic.
     step: ray-marching step in medium voxels.
@@ -44,6 +49,8 @@ class Method:
     solver: str = "sweep"
     rule: str = "moment"
     decay: str = "poisson"
+    isotropic: str = "walk"
+    handover: float = 0.5
     tolerance: float = 1e-3
     max_iterations: int = 0
     step: float = 0.5
@@ -56,6 +63,8 @@ class Method:
         _choice(self.solver, "method.solver", src, SOLVERS)
         _choice(self.rule, "method.rule", src, RULES)
         _choice(self.decay, "method.decay", src, DECAYS)
+        _choice(self.isotropic, "method.isotropic", src, ISOTROPIC)
+        _float_in(self.handover, "method.handover", src, 0.0, 1.0)
         _float_in(self.tolerance, "method.tolerance", src, 1e-12, 1.0)
         _int_in(self.max_iterations, "method.max_iterations", src, 0, 10_000_000)
         _float_in(self.step, "method.step", src, 1e-3, 16.0)

@@ -53,6 +53,19 @@ def split(table, w, wa, moment):
 
 
 @nb.njit(inline="always", cache=True)
+def _hands_over(handover, diffusive, Q, k, i, j, w, wa):
+    """The isotropic stage (METHOD.md step 7, done as diffusion): a packet at a cell centre whose
+    lobe has spread below |a| < handover, in a cell of the diffusion region, leaves the walk:
+    its power and first moment go to Q[0], Q[1] (the diffusion source, see diffusion.py).
+    ``handover`` <= 0 turns this off (``diffusive`` and ``Q`` are then not read)."""
+    if handover > 0.0 and diffusive[k, i, j] and abs(wa) < handover * w:
+        Q[0, k, i, j] += w
+        Q[1, k, i, j] += wa
+        return True
+    return False
+
+
+@nb.njit(inline="always", cache=True)
 def _wrap(i, n):
     if i < 0:
         return i + n
@@ -66,12 +79,15 @@ def _wrap(i, n):
 # ---------------------------------------------------------------------------------------------
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out, tally):
+def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out, tally,
+                handover, diffusive, Q):
     """Accumulate the current wave into (phi, phia) and split every packet.
 
     ``out`` float32 (6, n_d, n_u, n_v) receives the parts after the sender's half step:
     0 front, 1 front*a', 2 side (each), 3 side*a', 4 back, 5 back*a'. Parts that leave the
-    domain are tallied; so is what the sender's half step absorbs.
+    domain are tallied; so is what the sender's half step absorbs. With ``handover`` > 0, a
+    packet in a ``diffusive`` cell whose |a| < handover leaves the walk into Q (see
+    :func:`_hands_over`).
     """
     n0, n1, n2 = W.shape
     refl = 0.0
@@ -88,6 +104,10 @@ def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out
                         out[p, k, i, j] = 0.0
                     continue
                 wa = Wa[k, i, j]
+                if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
+                    for p in range(6):
+                        out[p, k, i, j] = 0.0
+                    continue
                 phi[k, i, j] += w * inv_area
                 phia[k, i, j] += wa * inv_area
                 ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
@@ -188,7 +208,7 @@ def _add(R, Ra, k, i, j, e, ea):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
-                phia, bands, halo, tally_b):
+                phia, bands, halo, tally_b, handover, diffusive, Q):
     """One sweep over all slices (``forward``: k = 0, 1, ...), each band by its own thread;
     within a slice rows and columns run in increasing order, or decreasing if ``flip``.
     A cell sends only if its pending energy exceeds ``w_min`` (below it the energy stays pending,
@@ -223,6 +243,8 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
                     w *= th
                     R[k, i, j] = 0.0
                     Ra[k, i, j] = 0.0
+                    if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
+                        continue
                     phi[k, i, j] += w * inv_area
                     phia[k, i, j] += wa * inv_area
                     ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
@@ -281,12 +303,12 @@ def deliver_halo(R, Ra, bands, halo):
 
 @nb.njit(fastmath=True, cache=True)
 def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi, phia,
-          bands, halo, tally_b, tally):
+          bands, halo, tally_b, tally, handover, diffusive, Q):
     """One Gauss-Seidel sweep (see above); adds the sweep's tallies to ``tally`` and returns
     the energy still pending (arrived, before the receivers' half steps)."""
     tally_b[:] = 0.0
     sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
-                phia, bands, halo, tally_b)
+                phia, bands, halo, tally_b, handover, diffusive, Q)
     deliver_halo(R, Ra, bands, halo)
     for b in range(tally_b.shape[0]):
         for c in range(4):

@@ -51,11 +51,24 @@ def _move(e, m, Th, Dh, axis, step, periodic, tally, slot):
     return e_in * T, ea_in * T * Dh
 
 
-def jacobi_step(W, Wa, Th, Dh, rule, periodic, inv_area, phi, phia, tally):
-    """One wavefront iteration (twin of kernels.propagation.jacobi_step + boundary_escape):
+def hand_over(W, Wa, handover, diffusive, Q):
+    """The isotropic stage's hand-over (twin of propagation._hands_over), whole arrays: packets
+    with |a| < handover in diffusive cells move into Q[0], Q[1]; returns what stays."""
+    if handover <= 0:
+        return W, Wa
+    leave = diffusive & (np.abs(Wa) < handover * W)
+    Q[0] += np.where(leave, W, 0.0)
+    Q[1] += np.where(leave, Wa, 0.0)
+    return np.where(leave, 0.0, W), np.where(leave, 0.0, Wa)
+
+
+def jacobi_step(W, Wa, Th, Dh, rule, periodic, inv_area, phi, phia, tally, handover=-1.0,
+                diffusive=None, Q=None):
+    """One wavefront iteration (twin of kernels.propagation.jacobi_send + jacobi_gather):
     accumulate the wave into phi/phia, send every cell's packet to its 6 neighbours.
     Returns the next wave (W, Wa), float64."""
     Th, Dh = Th.astype(np.float64), Dh.astype(np.float64)
+    W, Wa = hand_over(np.asarray(W, np.float64), np.asarray(Wa, np.float64), handover, diffusive, Q)
     phi += W * inv_area
     phia += Wa * inv_area
     (ef, mf), (es, ms), (eb, mb) = split_exact(W, Wa, rule)
@@ -70,7 +83,7 @@ def jacobi_step(W, Wa, Th, Dh, rule, periodic, inv_area, phi, phia, tally):
 
 
 def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, phia, tally,
-          band_rows=16):
+          band_rows=16, handover=-1.0, diffusive=None, Q=None):
     """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), cell by cell, in place.
 
     (R, Ra) hold what has arrived at each cell, before the cell's own half step. Visiting order:
@@ -95,8 +108,13 @@ def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, ph
                     th, dh = float(Th[k, i, j]), float(Dh[k, i, j])
                     w = R[k, i, j] * th
                     wa = Ra[k, i, j] * th * dh
-                    tally[ABSORBED] += R[k, i, j] * (1 - th) + w * (1 - th)
+                    tally[ABSORBED] += R[k, i, j] * (1 - th)          # the receiver's half step
                     R[k, i, j] = Ra[k, i, j] = 0.0
+                    if handover > 0 and diffusive[k, i, j] and abs(wa) < handover * w:
+                        Q[0, k, i, j] += w
+                        Q[1, k, i, j] += wa
+                        continue
+                    tally[ABSORBED] += w * (1 - th)                   # the sender's
                     phi[k, i, j] += w * inv_area
                     phia[k, i, j] += wa * inv_area
                     (ef, mf), (es, ms), (eb, mb) = split_exact(w, wa, rule)
@@ -179,6 +197,15 @@ def render_pixel(scene, solution, px, py):
             A = float(trilinear(solution.phia[l, 0], np.clip(q, -0.5, np.asarray(med.shape) - 0.5))) / p
             mu = -np.dot(solution.directions[l], d)
             Ls += p * hg.f_hg(mu, np.clip(med.g * A, -0.9999, 0.9999)) * solution.irradiance[l]
+        for l in range(solution.phid.shape[0]):          # diffuse lobes, about their flux J
+            qc = np.clip(q, -0.5, np.asarray(med.shape) - 0.5)
+            pd = float(trilinear(solution.phid[l, 0], qc))
+            if pd <= 0:
+                continue
+            J = np.array([float(trilinear(solution.flux[l, c], qc)) for c in range(3)])
+            jn = np.linalg.norm(J)
+            lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, med.g * min(jn / pd, 0.99))
+            Ls += pd * lobe * solution.irradiance[l]
         T_seg = np.exp(-sigma_t * ds)
         L += Tv * (1 - T_seg) / sigma_t * sigma_s * Ls
         Tv *= T_seg

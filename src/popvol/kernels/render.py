@@ -16,6 +16,7 @@ import numpy as np
 from .sampling import corner_weights
 
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
+MAX_DIFFUSE_ANISOTROPY = 0.99   # |J| / phi of P1 diffusion is not limited to < 1; the lobe is
 T_MIN = 1e-4    # stop marching when the view transmittance falls below this (bias <= 1e-4 of L)
 
 
@@ -78,20 +79,41 @@ def ray_box(o, d, lo, hi):
     return t0, t1
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _diffuse_lobe(phid, flux, l, i0, i1, j0, j1, k0, k1, fx, fy, fz, d, gg):
+    """phi_d * f_hg(-d . J/|J|; g |J| / phi_d): the diffuse light's lobe about its own flux J,
+    convolved with the phase function (see popvol/diffusion.py), seen along the camera ray d."""
+    pd = _interp(phid, i0, i1, j0, j1, k0, k1, fx, fy, fz)
+    if pd <= 0.0:
+        return 0.0
+    jx = _interp(flux[l, 0], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+    jy = _interp(flux[l, 1], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+    jz = _interp(flux[l, 2], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+    jn = math.sqrt(jx * jx + jy * jy + jz * jz)
+    if jn <= 0.0:
+        return pd * INV_FOUR_PI
+    A = min(jn / pd, MAX_DIFFUSE_ANISOTROPY)
+    mu = -(jx * d[0] + jy * d[1] + jz * d[2]) / jn
+    return pd * f_hg(mu, gg * A)
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
-                  phi, phia, light_dir, irradiance, background,
+                  phi, phia, phid, flux, light_dir, irradiance, background,
                   cam_origin, cam_basis, tan_half, width, height,
                   step, spp, seed, jitter, out):
     """Render into ``out`` float32 (height, width, 3), linear radiance.
 
     density: float32 (nx, ny, nz); albedo, g_grid: float32 grids (1,1,1) or density-shaped;
     phi, phia: float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit irradiance;
+    phid, flux: the diffuse lobe's fluence (n_lights, n_channels, ...) and world flux vector
+    (n_lights, 3, ...), or arrays with n_lights = 0 when there is no diffusion stage;
     light_dir, irradiance: float64 (n_lights, 3); background: float64 (3,);
     cam_basis rows forward, right, up; step in world units; jitter: random sub-pixel and
     along-ray offsets (False: pixel centres and segment midpoints, for tests).
     """
     nx, ny, nz = density.shape
+    has_diffuse = phid.shape[0] > 0
     n_lights = phi.shape[0]
     n_ch = phi.shape[1]
     aspect = width / height
@@ -156,15 +178,18 @@ def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
                         mu = -(light_dir[l, 0] * d[0] + light_dir[l, 1] * d[1] + light_dir[l, 2] * d[2])
                         for c in range(n_ch):
                             p = _interp(phi[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
-                            if p <= 0.0:
-                                continue
-                            A = _interp(phia[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz) / p
-                            gA = gg * A
-                            if gA > 0.9999:
-                                gA = 0.9999
-                            elif gA < -0.9999:
-                                gA = -0.9999
-                            val = p * f_hg(mu, gA)
+                            val = 0.0
+                            if p > 0.0:
+                                A = _interp(phia[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz) / p
+                                gA = gg * A
+                                if gA > 0.9999:
+                                    gA = 0.9999
+                                elif gA < -0.9999:
+                                    gA = -0.9999
+                                val = p * f_hg(mu, gA)
+                            if has_diffuse:
+                                val += _diffuse_lobe(phid[l, c], flux, l, i0, i1, j0, j1, k0, k1,
+                                                     fx, fy, fz, d, gg)
                             if n_ch == 1:
                                 ls[0] += val * irradiance[l, 0]
                                 ls[1] += val * irradiance[l, 1]

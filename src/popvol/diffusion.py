@@ -1,0 +1,119 @@
+"""The isotropic stage as a diffusion solve (METHOD.md step 7; issue "accuracy", candidate 1).
+
+Why: once a cell's lobe has spread (|a| small), POP's six-neighbour walk moves it like a random
+walk whose step is the cell size, so its diffusion length follows the grid, not the transport
+mean free path, and the answer does not converge under refinement (docs/ACCURACY_NOTES.md).
+Light in that state is handed to the steady diffusion equation instead, whose coefficient is
+physical:
+
+    -div(D grad phi_d) + sigma_a phi_d = q0 - div(3 D q1),     D = 1 / (3 sigma_tr),
+    sigma_tr = sigma_a + sigma_s (1 - g)  (similarity: the transport coefficient),
+
+with q0 the handed-over power per volume and q1 its first moment (power * a along the light's
+axis, per volume): the standard P1 source of an anisotropic emitter, which keeps light that was
+still drifting forward from being re-emitted backward. Marshak boundaries (no light enters) at
+the domain faces and where the region ends. Solved by conjugate gradients (Jacobi
+preconditioner) in kernels/diffusion.py.
+
+The region: cells with sigma_tr > 0; D is capped at L / 3 (L: the domain's longest side), a
+transport mean free path as long as the domain, so the thinnest fringes stay finite.
+
+Rendering: the diffuse light is a second lobe beside the walk's, phi_d * HG(w . J/|J|; |J| / phi_d)
+with J = -D grad phi_d + 3 D q1 the P1 flux: the same fluence and first moment as the P1 radiance
+(phi_d + 3 J . w) / 4 pi, but never negative. Its axis is J's own direction: light leaving a
+cloud sideways to the sun is seen leaving sideways (folding J onto the light's axis, as the walk's
+lobe is, lost up to half the brightness of faces lit at grazing angles). |J| / phi_d is capped
+at 0.99 where P1 diffusion (no flux limiter) gives more.
+
+Biases (documented in the README): diffusion is wrong where the medium is thin on the scale of
+a transport mean free path (fringes, thin wisps) and near the lit faces; light leaking out of the
+region into empty cells of the domain is not propagated further (it is tallied as escaped).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kernels import diffusion as K
+
+
+@dataclass
+class DiffusionResult:
+    phi: np.ndarray          # float32 domain shape: fluence of the diffuse light [W/m^2]
+    flux: np.ndarray         # float32 (3,) + domain shape: its flux J [W/m^2] along d, u, v
+    iterations: int
+    residual: float          # final ||r|| / ||b||
+    absorbed: float          # [W]
+    leaked: tuple            # [W]: (face toward the light, far face, lateral faces, into empty cells)
+    source: float            # [W]: handed-over power
+
+
+def coefficients(sigma_t, sigma_s, g, h):
+    """D [world units], sigma_a h^3, and the region mask, from the domain's medium."""
+    sigma_a = np.maximum(sigma_t - sigma_s, 0.0)
+    sigma_tr = sigma_a + sigma_s * (1.0 - g)
+    mask = sigma_tr > 0
+    L = h * max(sigma_t.shape)
+    with np.errstate(divide="ignore"):
+        D = np.where(mask, np.minimum(1.0 / (3.0 * sigma_tr), L / 3.0), 1.0).astype(np.float32)
+    return D, (sigma_a * h ** 3).astype(np.float32), mask
+
+
+def source(Q0, Q1, D, mask, h):
+    """Right-hand side b [W]: q0 h^3 minus the divergence of 3 D q1 (along the light axis k),
+    face values of q1 averaged, D harmonic; no dipole flux through the region's boundary."""
+    b = Q0.astype(np.float64)
+    m = Q1.astype(np.float64)                  # power * a per cell [W]
+    Df = np.zeros((D.shape[0] + 1,) + D.shape[1:])
+    both = mask[1:] & mask[:-1]
+    Df[1:-1] = np.where(both, 2.0 * D[1:] * D[:-1] / np.maximum(D[1:] + D[:-1], 1e-30), 0.0)
+    mf = np.zeros_like(Df)
+    mf[1:-1] = m[1:] + m[:-1]
+    flux = Df * mf * (3.0 / (2.0 * h))         # 3 D q1 . n h^2 through face k - 1/2, toward +k
+    b -= flux[1:] - flux[:-1]
+    return b
+
+
+def solve_diffusion(Q0, Q1, sigma_t, sigma_s, g, h, rtol=1e-4, max_iterations=0) -> DiffusionResult:
+    """Diffuse light of a domain from its handed-over power Q0 and moment Q1 (float32, [W])."""
+    D, sah3, mask = coefficients(sigma_t, sigma_s, g, h)
+    b = source(Q0, Q1, D, mask, h)
+    b[~mask] = 0.0
+    x, it, res = pcg(D, sah3, mask, h, b, rtol, max_iterations or 20 * max(b.shape) + 200)
+    leaked = K.leaks(x, D, mask, h)
+    absorbed = float(np.sum(sah3 * x))
+    # P1 flux J = -D grad phi + 3 D q1 (q1 = Q1 / h^3, along the light's axis d = axis 0)
+    J = np.zeros((3,) + x.shape, np.float32)
+    for axis in range(3):
+        grad = np.gradient(x, h, axis=axis) if x.shape[axis] > 1 else np.zeros_like(x)
+        J[axis] = np.where(mask, -D * grad, 0.0)
+    J[0] += np.where(mask, 3.0 * D * Q1 / h ** 3, 0.0)
+    return DiffusionResult(x.astype(np.float32), J, it, res, absorbed,
+                           tuple(float(v) for v in leaked), float(Q0.sum(dtype=np.float64)))
+
+
+def pcg(D, sah3, mask, h, b, rtol, max_iterations):
+    """Jacobi-preconditioned conjugate gradients for A x = b. Returns (x, iterations, ||r||/||b||)."""
+    x = np.zeros(b.shape)
+    bn = math.sqrt(K.dot(b, b))
+    if bn == 0.0:
+        return x, 0, 0.0
+    M = np.empty(b.shape)
+    K.diagonal(D, sah3, mask, h, M)
+    r = b.copy()
+    z = r / M
+    p = z.copy()
+    Ap = np.empty(b.shape)
+    rz = K.dot(r, z)
+    rr = K.dot(r, r)
+    it = 0
+    while math.sqrt(rr) > rtol * bn and it < max_iterations:
+        K.apply(p, D, sah3, mask, h, Ap)
+        alpha = rz / K.dot(p, Ap)
+        rz_new, rr = K.cg_update(x, r, p, Ap, M, alpha, z)
+        K.cg_direction(p, z, rz_new / rz)
+        rz = rz_new
+        it += 1
+    return x, it, math.sqrt(rr) / bn

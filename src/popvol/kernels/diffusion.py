@@ -1,0 +1,148 @@
+"""Numba kernels of the diffusion stage (see popvol/diffusion.py for the equations).
+
+Finite volumes on a light domain (cells of size h). Unknown: fluence phi [W/m^2] in the cells of
+the diffusion region (``mask``). Balance of cell p, in watts:
+
+    sum_q G_pq (phi_p - phi_q) + sum_b G_b phi_p + sigma_a h^3 phi_p = b_p
+
+G_pq = h * 2 D_p D_q / (D_p + D_q) between two region cells (face area h^2 over distance h,
+harmonic mean of D = 1 / (3 sigma_tr)); G_b = h^2 * 2 D_p / (4 D_p + h) through a face to the
+outside of the region (domain boundary or a cell outside the region): the Marshak condition
+J = phi_face / 2 (no light enters) with Fick's law over the half cell to the face.
+The matrix is symmetric positive definite; it is never stored.
+"""
+import numba as nb
+import numpy as np
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def g_face(Dp, Dq, h):
+    return h * 2.0 * Dp * Dq / (Dp + Dq)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def g_boundary(Dp, h):
+    return h * h * 2.0 * Dp / (4.0 * Dp + h)
+
+
+@nb.njit(inline="always", cache=True)
+def _neighbour(k, i, j, nbh):
+    return (k + (nbh == 0) - (nbh == 1), i + (nbh == 2) - (nbh == 3), j + (nbh == 4) - (nbh == 5))
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def apply(x, D, sah3, mask, h, out):
+    """out = A x (zero outside the region). x, out float64; D, sah3 float32; mask bool."""
+    n0, n1, n2 = x.shape
+    for kk in nb.prange(n0):
+        k = np.int64(kk)
+        for i in range(n1):
+            for j in range(n2):
+                if not mask[k, i, j]:
+                    out[k, i, j] = 0.0
+                    continue
+                Dp = D[k, i, j]
+                diag = sah3[k, i, j]
+                acc = 0.0
+                for nbh in range(6):
+                    kq, iq, jq = _neighbour(k, i, j, nbh)
+                    if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
+                        G = g_face(Dp, D[kq, iq, jq], h)
+                        diag += G
+                        acc += G * x[kq, iq, jq]
+                    else:
+                        diag += g_boundary(Dp, h)
+                out[k, i, j] = diag * x[k, i, j] - acc
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def diagonal(D, sah3, mask, h, out):
+    """The diagonal of A (1 outside the region, so that it can be divided by)."""
+    n0, n1, n2 = D.shape
+    for kk in nb.prange(n0):
+        k = np.int64(kk)
+        for i in range(n1):
+            for j in range(n2):
+                if not mask[k, i, j]:
+                    out[k, i, j] = 1.0
+                    continue
+                Dp = D[k, i, j]
+                diag = sah3[k, i, j]
+                for nbh in range(6):
+                    kq, iq, jq = _neighbour(k, i, j, nbh)
+                    if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
+                        diag += g_face(Dp, D[kq, iq, jq], h)
+                    else:
+                        diag += g_boundary(Dp, h)
+                out[k, i, j] = diag
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def dot(a, b):
+    total = 0.0
+    for kk in nb.prange(a.shape[0]):
+        k = np.int64(kk)
+        s = 0.0
+        for i in range(a.shape[1]):
+            for j in range(a.shape[2]):
+                s += a[k, i, j] * b[k, i, j]
+        total += s
+    return total
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def cg_update(x, r, p, Ap, M, alpha, z):
+    """x += alpha p; r -= alpha Ap; z = r / M. Returns (r . z, r . r)."""
+    rz = 0.0
+    rr = 0.0
+    for kk in nb.prange(x.shape[0]):
+        k = np.int64(kk)
+        for i in range(x.shape[1]):
+            for j in range(x.shape[2]):
+                x[k, i, j] += alpha * p[k, i, j]
+                rv = r[k, i, j] - alpha * Ap[k, i, j]
+                r[k, i, j] = rv
+                zv = rv / M[k, i, j]
+                z[k, i, j] = zv
+                rz += rv * zv
+                rr += rv * rv
+    return rz, rr
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def cg_direction(p, z, beta):
+    """p = z + beta p."""
+    for kk in nb.prange(p.shape[0]):
+        k = np.int64(kk)
+        for i in range(p.shape[1]):
+            for j in range(p.shape[2]):
+                p[k, i, j] = z[k, i, j] + beta * p[k, i, j]
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def leaks(phi, D, mask, h):
+    """Power [W] leaving the region: (through face k = 0, through k = n_d - 1, through the 4
+    lateral faces of the domain, into cells outside the region)."""
+    n0, n1, n2 = phi.shape
+    r = 0.0
+    t = 0.0
+    s = 0.0
+    o = 0.0
+    for kk in nb.prange(n0):
+        k = np.int64(kk)
+        for i in range(n1):
+            for j in range(n2):
+                if not mask[k, i, j]:
+                    continue
+                g = g_boundary(D[k, i, j], h) * phi[k, i, j]
+                for nbh in range(6):
+                    kq, iq, jq = _neighbour(k, i, j, nbh)
+                    if kq < 0:
+                        r += g
+                    elif kq >= n0:
+                        t += g
+                    elif iq < 0 or iq >= n1 or jq < 0 or jq >= n2:
+                        s += g
+                    elif not mask[kq, iq, jq]:
+                        o += g
+    return r, t, s, o
