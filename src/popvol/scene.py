@@ -37,6 +37,8 @@ class Method:
         cell, the papers' POP) or "diffusion" (it leaves the walk for a diffusion solve with the
         physical coefficient 1 / (3 sigma_tr); see popvol/diffusion.py).
     handover: with "diffusion", the |anisotropy| below which a packet is handed over.
+    diffusion_resolution: cells along the longest side of the diffusion grid (blocks of the
+        light's domain; 0 = the domain's own cells).
     tolerance: stop when the energy still in flight is below tolerance * injected energy.
     max_iterations: cap on iterations (jacobi) or sweeps (sweep); 0 = automatic.
     step: ray-marching step in medium voxels.
@@ -49,8 +51,9 @@ class Method:
     solver: str = "sweep"
     rule: str = "moment"
     decay: str = "poisson"
-    isotropic: str = "walk"
-    handover: float = 0.5
+    isotropic: str = "diffusion"
+    handover: float = 0.05
+    diffusion_resolution: int = 64
     tolerance: float = 1e-3
     max_iterations: int = 0
     step: float = 0.5
@@ -65,6 +68,7 @@ class Method:
         _choice(self.decay, "method.decay", src, DECAYS)
         _choice(self.isotropic, "method.isotropic", src, ISOTROPIC)
         _float_in(self.handover, "method.handover", src, 0.0, 1.0)
+        _int_in(self.diffusion_resolution, "method.diffusion_resolution", src, 0, 4096)
         _float_in(self.tolerance, "method.tolerance", src, 1e-12, 1.0)
         _int_in(self.max_iterations, "method.max_iterations", src, 0, 10_000_000)
         _float_in(self.step, "method.step", src, 1e-3, 16.0)

@@ -204,7 +204,7 @@ def render_pixel(scene, solution, px, py):
                 continue
             J = np.array([float(trilinear(solution.flux[l, c], qc)) for c in range(3)])
             jn = np.linalg.norm(J)
-            lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, med.g * min(jn / pd, 0.99))
+            lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, med.g * min(jn / pd, 1 / 3))
             Ls += pd * lobe * solution.irradiance[l]
         T_seg = np.exp(-sigma_t * ds)
         L += Tv * (1 - T_seg) / sigma_t * sigma_s * Ls

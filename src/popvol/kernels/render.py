@@ -16,7 +16,7 @@ import numpy as np
 from .sampling import corner_weights
 
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
-MAX_DIFFUSE_ANISOTROPY = 0.99   # |J| / phi of P1 diffusion is not limited to < 1; the lobe is
+MAX_DIFFUSE_ANISOTROPY = 1.0 / 3.0   # P1 radiance (phi + 3 J . w) / 4 pi is >= 0 only for |J| <= phi / 3
 T_MIN = 1e-4    # stop marching when the view transmittance falls below this (bias <= 1e-4 of L)
 
 
