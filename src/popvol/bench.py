@@ -87,12 +87,13 @@ def bench_propagation(resolution: int, repeat: int, width=640, height=360) -> di
     return out
 
 
-def bench_scene(scene_path, repeat: int, width=640, height=360) -> dict:
-    scene = load_scene(scene_path, width=width, height=height)
+def bench_scene(scene_path, repeat: int, width=640, height=360, overrides=None) -> dict:
+    scene = load_scene(scene_path, width=width, height=height, **(overrides or {}))
     solution = solve(scene)                     # warm-up (compilation, caches)
     render(scene, solution)
     t_solve = []
     t_render = []
+    stages = []
     for _ in range(repeat):
         t0 = time.perf_counter()
         solution = solve(scene)
@@ -100,9 +101,14 @@ def bench_scene(scene_path, repeat: int, width=640, height=360) -> dict:
         render(scene, solution)
         t_solve.append(t1 - t0)
         t_render.append(time.perf_counter() - t1)
+        stages.append(solution.seconds)
     d = solution.domains[0]
-    return {"scene": str(scene_path or "<demo>"), "domain_shape": list(d.domain.shape),
+    m = scene.method
+    return {"scene": str(scene_path or "<demo>"), "method": f"{m.rule} + {m.decay} + {m.isotropic}",
+            "domain_shape": list(d.domain.shape),
             "iterations": d.result.iterations, "residual": d.result.residual,
+            "diffusion_iterations": d.result.diffusion.iterations if d.result.diffusion else 0,
+            "solve_stages_s": {k: statistics.median(st[k] for st in stages) for k in stages[0]},
             "solve_s": statistics.median(t_solve), "render_s": statistics.median(t_render),
             "total_s": statistics.median(np.add(t_solve, t_render)),
             "camera_samples_per_s": width * height * scene.method.spp / statistics.median(t_render)}
@@ -125,6 +131,8 @@ def run_benchmarks(quick: bool = False, echo=print) -> dict:
         echo("WDAS cloud under the sun (128 cells, 640x360) ...")
         res["wdas_sun"] = bench_scene(wdas, repeat)
         res["wdas_sun"]["target_total_s"] = 1.0
+        echo("WDAS cloud, the walk alone (isotropic = walk) ...")
+        res["wdas_sun_walk"] = bench_scene(wdas, repeat, overrides={"isotropic": "walk"})
     else:
         res["wdas_sun"] = {"skipped": "quick mode" if quick else f"{data} not found"}
     return res

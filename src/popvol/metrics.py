@@ -88,7 +88,7 @@ def comparison_figure(path, img, ref, exposure: float = 0.0, title: str = "") ->
     img, ref = _pair(img, ref)
     h, w = ref.shape[:2]
     aspect = w / h
-    fig, axes = plt.subplots(1, 3, figsize=(3 * 3.6 * aspect / 1.2 + 1.2, 3.6 / 1.2 + 0.6), dpi=110,
+    fig, axes = plt.subplots(1, 3, figsize=(3 * 3.6 * aspect / 1.2 + 1.2, 3.6 / 1.2 + 0.6), dpi=80,
                              gridspec_kw={"width_ratios": [1, 1, 1.12]})
     err = np.sqrt(relmse_map(img, ref))          # relative error per pixel
     axes[0].imshow(tonemap(img, exposure))
