@@ -43,6 +43,12 @@ def split_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
     return table
 
 
+@functools.lru_cache(maxsize=4)
+def split_table32(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
+    """:func:`split_table` in float32, what the kernels read (see kernels.propagation.split)."""
+    return split_table(n).astype(np.float32)
+
+
 def medium_factors(sigma_t: np.ndarray, sigma_s: np.ndarray, g: np.ndarray, h: float,
                    decay: str) -> tuple[np.ndarray, np.ndarray]:
     """Half-step transmittance Th and anisotropy decay Dh per cell, float32 (same shape).
@@ -140,8 +146,8 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
     Dh = np.ascontiguousarray(Dh, np.float32)
     shape = Th.shape
     moment = rule == "moment"
-    table = split_table()
-    inv_area = 1.0 / (h * h)
+    table = split_table32()
+    inv_area = np.float32(1.0 / (h * h))
     cap = max_iterations or default_max_iterations(shape, solver)
 
     W = np.zeros(shape, np.float32)
