@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import PopvolError
 
-SUFFIXES = (".npz", ".vol")
+SUFFIXES = (".npz", ".vol", ".vdb")
 VOL_HEADER_BYTES = 48
 
 
@@ -145,7 +145,12 @@ def read_volume(path, grid: str | None = None) -> VolumeData:
         if grid not in (None, "density"):
             raise PopvolError(f"{path}: .vol files hold one unnamed grid; remove medium.grid = {grid!r}")
         return read_vol(path)
-    if suffix in (".vdb", ".nvdb"):
-        raise PopvolError(f"{path}: {suffix} is not supported yet; convert to .npz or .vol "
-                          f"(supported: {', '.join(SUFFIXES)})")
+    if suffix == ".vdb":
+        from .vdb import read_vdb
+        density, voxel, origin, _ = read_vdb(path, grid)
+        return VolumeData(validate_density(density, str(path), grid or "density"), voxel, origin, str(path))
+    if suffix == ".nvdb":
+        raise PopvolError(f"{path}: NanoVDB is not read (no light, maintained reader on PyPI); read the "
+                          "OpenVDB .vdb it came from, or convert it to .npz (e.g. warp-lang: "
+                          "wp.Volume.load_from_nvdb(f).array().numpy())")
     raise PopvolError(f"{path}: unsupported volume type {suffix or '(none)'}; supported: {', '.join(SUFFIXES)}")
