@@ -41,7 +41,8 @@ def test_example_toml_is_the_demo():
     a = load_scene(REPO / "examples" / "demo.toml")
     b = load_scene()
     np.testing.assert_array_equal(a.medium.density, b.medium.density)
-    assert (a.medium.scale, a.medium.albedo, a.medium.g) == (b.medium.scale, b.medium.albedo, b.medium.g)
+    for key in ("scale", "albedo", "g"):
+        np.testing.assert_array_equal(getattr(a.medium, key), getattr(b.medium, key))
     np.testing.assert_array_equal(a.camera.origin, b.camera.origin)
     assert vars(a.method) == vars(b.method)
 
@@ -84,6 +85,33 @@ def test_bad_scene_gives_one_clear_line(tmp_path, snippet, words):
     for w in words:
         assert w in err, err
     assert "s.toml" in err or "nope.npz" in err
+
+
+@pytest.mark.parametrize("optics,words", [
+    ('albedo = [0.9, 0.8]\n', ["medium.albedo", "three (RGB)"]),
+    ('scale = [1, 2, -3]\n', ["medium.scale", "[0, inf]"]),
+    ('albedo = {grid = "wrong_shape"}\n', ["medium.albedo grid", "(3, 3, 3)", "(4, 4, 4)"]),
+    ('albedo = {grid = "too_big"}\n', ["medium.albedo grid", "outside [0, 1]", "(0, 0, 0)"]),
+    ('g = {grid = "g_one"}\n', ["medium.g grid", "outside (-1, 1)"]),
+    ('albedo = {grid = "nope"}\n', ["no array named 'nope'", "density"]),
+    ('albedo = {file = "x.npz", grid = "a", colour = 1}\n', ["unknown key medium.albedo.colour"]),
+    ('g = {grid = "g_neg"}\n[method]\ndecay = "paper"\n', ["decay = 'paper'", "g >= 0"]),
+])
+def test_bad_optics_give_one_clear_line(tmp_path, optics, words):
+    n = (4, 4, 4)
+    np.savez(tmp_path / "m.npz", density=np.ones(n, np.float32), wrong_shape=np.ones((3, 3, 3), np.float32),
+             too_big=np.full(n, 1.5, np.float32), g_one=np.ones(n, np.float32),
+             g_neg=np.full(n, -0.3, np.float32))
+    text = '[medium]\nfile = "m.npz"\n' + optics.split("[method]")[0] + LIGHT
+    if "[method]" in optics:
+        text += "[method]" + optics.split("[method]")[1]
+    p = write_scene(tmp_path, text)
+    r = popvol("render", str(p), "-o", str(tmp_path / "x.png"), "--width", "8", "--height", "8")
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    err = r.stderr.strip()
+    assert err.startswith("popvol: error: ") and "\n" not in err and "Traceback" not in err, err
+    for w in words:
+        assert w in err, err
 
 
 def test_bad_density_files(tmp_path):

@@ -34,6 +34,7 @@ def blob_file(tmp_path_factory):
 
 
 def blob_scene(path, albedo, scale, background, width=32, height=24, density_file=None):
+    """albedo and scale: a number or RGB."""
     return scene_from_dict({
         "medium": {"type": "file", "file": str(density_file or path), "scale": scale, "albedo": albedo, "g": 0.5},
         "lights": [{"type": "directional", "direction": [0.3, -1.0, -0.4], "irradiance": [1.0, 0.8, 0.6]}],
@@ -79,6 +80,21 @@ def test_absorbing_only_medium_has_the_same_transmittance_and_orientation(mi, bl
     dark_ref = np.unravel_index(np.argmin(ref[..., 2]), ref.shape[:2])
     dark_img = np.unravel_index(np.argmin(img[..., 2]), img.shape[:2])
     assert abs(dark_ref[0] - dark_img[0]) <= 1 and abs(dark_ref[1] - dark_img[1]) <= 1
+
+
+def test_rgb_extinction_and_albedo_mean_the_same_in_both(mi, blob_file):
+    """Chromatic media: RGB scale (a 3-channel grid in Mitsuba) and RGB albedo (constvolume)."""
+    sc = blob_scene(blob_file, 0.0, [8.0, 4.0, 1.0], [0.5, 0.5, 0.5])        # absorbing only
+    ref, var = mitsuba_passes(mi, sc, 64)
+    img = popvol.render(sc)
+    assert ref[..., 0].min() < 0.5 * ref[..., 2].min()                      # red is absorbed most
+    sigma = np.sqrt(blocks(var) / 16)
+    assert np.all(np.abs(blocks(img) - blocks(ref)) <= 5 * sigma + 0.01)
+    sc = blob_scene(blob_file, [1.0, 0.6, 0.3], [0.5, 0.4, 0.3], 0.0)       # thin, scattering
+    ref, var = mitsuba_passes(mi, sc, 1024)
+    img = popvol.render(sc)
+    for c in range(3):
+        assert img[..., c].sum() == pytest.approx(ref[..., c].sum(), rel=0.03, abs=4 * np.sqrt(var[..., c].sum()))
 
 
 def test_optically_thin_medium_matches_single_scattering(mi, blob_file):

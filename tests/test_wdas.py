@@ -41,9 +41,9 @@ def test_example_scene_is_the_wdas_cloud(wdas):
     med = scene.medium
     assert list(med.density.shape) == ref["dense_shape_xyz"]
     assert float(med.density.sum(dtype=np.float64)) == pytest.approx(ref["sum"], rel=1e-5)
-    assert med.scale == toml["medium"]["scale"]
-    assert med.albedo == toml["medium"]["albedo"]
-    assert med.g == toml["medium"]["g"]
+    np.testing.assert_array_equal(med.scale, toml["medium"]["scale"])     # grey: one value, RGB
+    np.testing.assert_array_equal(med.albedo, toml["medium"]["albedo"])
+    assert med.g == toml["medium"]["g"] and med.n_channels == 1
     # the medium is the union of the voxel cells
     lo, hi = med.bounds
     vs, c0 = np.asarray(ref["voxel_size"]), np.asarray(ref["world_of_ijk_min"])

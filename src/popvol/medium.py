@@ -8,9 +8,11 @@ Conventions (METHOD.md, "Conventions"):
   scattering sigma_s = albedo * sigma_t; absorption sigma_a = sigma_t - sigma_s.
 - Phase function: Henyey-Greenstein with asymmetry g.
 
-``albedo`` and ``g`` are constants for now. They are stored as grids of shape (1, 1, 1)
-(broadcast everywhere) so that kernels already take per-voxel grids: a later per-voxel albedo
-or g is a grid of the density's shape, with no kernel change.
+Optics may be chromatic and per voxel: ``scale`` and a constant ``albedo`` are RGB (one number
+means grey); ``albedo`` and ``g`` may also be grids of the density's shape (grey albedo per
+voxel, g per voxel). Kernels take optics as grids; constants are grids of shape (1, 1, 1).
+A chromatic medium (RGB scale or albedo that differ between channels) is propagated once per
+channel; a grey one once.
 """
 from __future__ import annotations
 
@@ -33,18 +35,21 @@ class Medium:
         density: float32 (nx, ny, nz), non-negative, finite.
         voxel_size: float64 (3,), world units, > 0.
         origin: float64 (3,), world position of the centre of voxel (0, 0, 0).
-        scale: sigma_t = scale * density, in 1 / world unit, >= 0.
-        albedo: single-scattering albedo in [0, 1].
-        g: Henyey-Greenstein asymmetry in (-1, 1).
+        scale: sigma_t = scale * density, in 1 / world unit, >= 0: one number or RGB; stored
+            as float64 (3,).
+        albedo: single-scattering albedo in [0, 1]: one number or RGB (stored float64 (3,)),
+            or a float32 grid of the density's shape (grey, per voxel).
+        g: Henyey-Greenstein asymmetry in (-1, 1): a number, or a float32 grid of the
+            density's shape.
         source: where the density came from (file path or generator), for messages.
     """
 
     density: np.ndarray
     voxel_size: np.ndarray
     origin: np.ndarray
-    scale: float = 1.0
-    albedo: float = 1.0
-    g: float = 0.0
+    scale: float | np.ndarray = 1.0
+    albedo: float | np.ndarray = 1.0
+    g: float | np.ndarray = 0.0
     source: str = "<array>"
     _field: str = field(default="medium", repr=False)
 
@@ -63,9 +68,15 @@ class Medium:
         self.density = d
         self.voxel_size = _vec3(self.voxel_size, f"{self._field}.voxel_size", self.source, positive=True)
         self.origin = _vec3(self.origin, f"{self._field}.origin", self.source)
-        self.scale = _number(self.scale, f"{self._field}.scale", self.source, lo=0.0)
-        self.albedo = _number(self.albedo, f"{self._field}.albedo", self.source, lo=0.0, hi=1.0)
-        self.g = _number(self.g, f"{self._field}.g", self.source, lo=-1.0, hi=1.0, open_interval=True)
+        self.scale = _rgb(self.scale, f"{self._field}.scale", self.source, lo=0.0)
+        if np.ndim(self.albedo) == 3:
+            self.albedo = _grid(self.albedo, d.shape, f"{self._field}.albedo", self.source, 0.0, 1.0, False)
+        else:
+            self.albedo = _rgb(self.albedo, f"{self._field}.albedo", self.source, lo=0.0, hi=1.0)
+        if np.ndim(self.g) == 3:
+            self.g = _grid(self.g, d.shape, f"{self._field}.g", self.source, -1.0, 1.0, True)
+        else:
+            self.g = _number(self.g, f"{self._field}.g", self.source, lo=-1.0, hi=1.0, open_interval=True)
 
     # -- geometry -------------------------------------------------------------------------
     @property
@@ -79,17 +90,46 @@ class Medium:
         hi = self.origin + (np.asarray(self.shape) - 0.5) * self.voxel_size
         return lo, hi
 
-    # -- optics as grids (kernels take grids; constants are (1, 1, 1) grids) ---------------
-    def albedo_grid(self) -> np.ndarray:
-        return np.full((1, 1, 1), self.albedo, np.float32)
+    # -- optics (kernels take grids; constants are (1, 1, 1) grids) -------------------------
+    @property
+    def albedo_per_voxel(self) -> bool:
+        return np.ndim(self.albedo) == 3
+
+    @property
+    def g_per_voxel(self) -> bool:
+        return np.ndim(self.g) == 3
+
+    @property
+    def n_channels(self) -> int:
+        """1 for a grey medium, 3 when scale or albedo differ between R, G and B."""
+        grey = np.all(self.scale == self.scale[0])
+        if not self.albedo_per_voxel:
+            grey = grey and np.all(self.albedo == self.albedo[0])
+        return 1 if grey else 3
+
+    def albedo_grid(self, channel: int = 0) -> np.ndarray:
+        """float32 grid: the per-voxel albedo, or channel ``channel`` of a constant as (1, 1, 1)."""
+        if self.albedo_per_voxel:
+            return self.albedo
+        return np.full((1, 1, 1), self.albedo[channel], np.float32)
 
     def g_grid(self) -> np.ndarray:
-        return np.full((1, 1, 1), self.g, np.float32)
+        return self.g if self.g_per_voxel else np.full((1, 1, 1), self.g, np.float32)
+
+    @property
+    def g_min(self) -> float:
+        return float(np.min(self.g))
+
+    @property
+    def grey_values(self) -> tuple[float, float | None, float | None]:
+        """(scale, albedo or None if per voxel, g or None if per voxel) of a grey medium."""
+        return (float(self.scale[0]), None if self.albedo_per_voxel else float(self.albedo[0]),
+                None if self.g_per_voxel else float(self.g))
 
     def max_optical_depth(self) -> float:
         """Largest sigma_t times the longest side: a rough scale of how dense the medium is."""
         lo, hi = self.bounds
-        return float(self.scale * self.density.max() * np.max(hi - lo))
+        return float(self.scale.max() * self.density.max() * np.max(hi - lo))
 
 
 def _vec3(value, name: str, source: str, positive: bool = False) -> np.ndarray:
@@ -101,6 +141,31 @@ def _vec3(value, name: str, source: str, positive: bool = False) -> np.ndarray:
     if positive and np.any(v <= 0):
         raise PopvolError(f"{source}: {name} = {v.tolist()} must be > 0")
     return v
+
+
+def _rgb(value, name: str, source: str, lo=None, hi=None) -> np.ndarray:
+    """One number or three (RGB), each in [lo, hi]: float64 (3,)."""
+    v = np.asarray(value, dtype=object if isinstance(value, (list, tuple)) else None)
+    items = list(v.reshape(-1)) if v.ndim else [value]
+    if len(items) not in (1, 3):
+        raise PopvolError(f"{source}: {name} must be one number or three (RGB), got {value!r}")
+    out = np.array([_number(x, name, source, lo=lo, hi=hi) for x in items], np.float64)
+    return np.repeat(out, 3) if out.size == 1 else out
+
+
+def _grid(value, shape, name: str, source: str, lo: float, hi: float, open_interval: bool) -> np.ndarray:
+    """A per-voxel optics grid: the density's shape, finite, every value in the range."""
+    a = np.asarray(value)
+    if a.shape != tuple(shape):
+        raise PopvolError(f"{source}: {name} grid has shape {a.shape}; it must match the density's {tuple(shape)}")
+    a = np.ascontiguousarray(a, np.float32)
+    ok = np.isfinite(a) & ((a > lo) & (a < hi) if open_interval else (a >= lo) & (a <= hi))
+    if not ok.all():
+        at = tuple(int(v) for v in np.argwhere(~ok)[0])
+        rng = f"({lo:g}, {hi:g})" if open_interval else f"[{lo:g}, {hi:g}]"
+        raise PopvolError(f"{source}: {name} grid has {int((~ok).sum())} values outside {rng} "
+                          f"(first at {at}: {a[at]!r})")
+    return a
 
 
 def _number(value, name: str, source: str, lo=None, hi=None, open_interval=False) -> float:

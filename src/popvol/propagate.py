@@ -238,6 +238,8 @@ class DomainSolution:
     domain: DirectionalDomain
     result: PropagationResult
     seconds_resample: float
+    channel: int = 0           # colour channel of a chromatic medium (0 for grey media)
+    light_index: int = 0       # which of the scene's lights
 
 
 @dataclass
@@ -248,8 +250,8 @@ class Solution:
     n_channels = 1; the renderer multiplies by each light's RGB irradiance): the walk's lobe,
     along each light's direction.
     phid: float32 (n_lights, n_channels, nx, ny, nz), fluence of the diffuse light, and
-    flux: float32 (n_lights, 3, nx, ny, nz), its world-space flux vector J (isotropic stage
-    "diffusion"; zero-size arrays otherwise).
+    flux: float32 (n_lights, n_channels, 3, nx, ny, nz), its world-space flux vector J
+    (isotropic stage "diffusion"; arrays with n_lights = 0 otherwise).
     """
 
     medium: Medium
@@ -260,14 +262,15 @@ class Solution:
     irradiance: np.ndarray     # float64 (n_lights, 3)
     seconds: dict = field(default_factory=dict)
     phid: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 1, 1, 1), np.float32))
-    flux: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 1, 1, 1), np.float32))
+    flux: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 3, 1, 1, 1), np.float32))
 
     def stats(self) -> dict:
         out = {"seconds": dict(self.seconds), "domains": []}
         for i, ds in enumerate(self.domains):
             r = ds.result
             out["domains"].append({
-                "light": i, "type": "directional", "shape": list(ds.domain.shape),
+                "light": ds.light_index, "channel": ds.channel,
+                "type": "directional", "shape": list(ds.domain.shape),
                 "cell_size": ds.domain.h, "iterations": r.iterations, "residual": r.residual,
                 "converged": r.converged, "cell_updates": r.cell_updates,
                 "seconds_resample": ds.seconds_resample, "seconds_propagate": r.seconds,
@@ -277,15 +280,22 @@ class Solution:
         return out
 
 
-def resample_medium(medium: Medium, domain: DirectionalDomain) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """sigma_t, sigma_s, g at the domain's cell centres, float32 (n_d, n_u, n_v) each."""
-    inv_voxel = 1.0 / medium.voxel_size
-    out = np.empty(domain.shape, np.float32)
-    resample(medium.density, inv_voxel, medium.origin, domain.frame, domain.origin, domain.h,
-             domain.shape, False, out)
-    sigma_t = out * np.float32(medium.scale)
-    sigma_s = sigma_t * np.float32(medium.albedo)
-    g = np.full(domain.shape, medium.g, np.float32)
+def resample_medium(medium: Medium, domain: DirectionalDomain, channel: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """sigma_t, sigma_s, g of colour ``channel`` at the domain's cell centres, float32
+    (n_d, n_u, n_v) each. Per-voxel albedo and g are resampled like the density (clamped to
+    the edge outside the grid, where the density is zero anyway)."""
+    def grid(values, clamp):
+        out = np.empty(domain.shape, np.float32)
+        resample(values, 1.0 / medium.voxel_size, medium.origin, domain.frame, domain.origin,
+                 domain.h, domain.shape, clamp, out)
+        return out
+    sigma_t = grid(medium.density, False) * np.float32(medium.scale[channel])
+    if medium.albedo_per_voxel:
+        sigma_s = sigma_t * grid(medium.albedo, True)
+    else:
+        sigma_s = sigma_t * np.float32(medium.albedo[channel])
+    g = grid(medium.g, True) if medium.g_per_voxel else np.full(domain.shape, medium.g, np.float32)
     return sigma_t, sigma_s, g
 
 
@@ -297,15 +307,17 @@ def diffusion_factor(shape, method: Method) -> int:
     return max(1, round(max(shape) / method.diffusion_resolution))
 
 
-def solve_light(medium: Medium, light: DirectionalLight, method: Method, progress=None) -> DomainSolution:
-    """Build the light's domain, resample the medium into it and propagate unit irradiance."""
-    if method.decay == "paper" and medium.g < 0:
+def solve_light(medium: Medium, light: DirectionalLight, method: Method, progress=None,
+                channel: int = 0) -> DomainSolution:
+    """Build the light's domain, resample the medium (colour ``channel``) into it and propagate
+    unit irradiance."""
+    if method.decay == "paper" and medium.g_min < 0:
         from .errors import PopvolError
         raise PopvolError(f"{medium.source}: method.decay = 'paper' (g^(sigma_s s), supplement "
-                          f"Eq. 12) needs g >= 0, got g = {medium.g}; use decay = 'poisson'")
+                          f"Eq. 12) needs g >= 0, got g = {medium.g_min:g}; use decay = 'poisson'")
     t0 = time.perf_counter()
     dom = directional_domain(medium, light.direction, method.resolution)
-    sigma_t, sigma_s, g = resample_medium(medium, dom)
+    sigma_t, sigma_s, g = resample_medium(medium, dom, channel)
     Th, Dh = medium_factors(sigma_t, sigma_s, g, dom.h, method.decay)
     diffusion = method.isotropic == "diffusion"
     medium_arrays = (sigma_t, sigma_s, g) if diffusion else None
@@ -316,42 +328,46 @@ def solve_light(medium: Medium, light: DirectionalLight, method: Method, progres
                     method.tolerance, method.max_iterations, progress=progress,
                     isotropic=method.isotropic, handover=method.handover, medium=medium_arrays,
                     diffusion_factor=diffusion_factor(dom.shape, method))
-    return DomainSolution(light, dom, res, t1 - t0)
+    return DomainSolution(light, dom, res, t1 - t0, channel)
 
 
 def solve(scene: Scene, progress=None) -> Solution:
-    """Propagate every light of ``scene``; returns the fields the renderer needs."""
+    """Propagate every light of ``scene`` (and every colour channel of a chromatic medium);
+    returns the fields the renderer needs."""
     med = scene.medium
     n = len(scene.lights)
-    check_memory(2 * n * med.density.size * 4, f"{med.source}: medium", f"fields of {n} light(s) on a "
-                 f"{'x'.join(map(str, med.shape))} grid")
-    phi = np.empty((n, 1) + med.shape, np.float32)
+    n_ch = med.n_channels
+    check_memory(2 * n * n_ch * med.density.size * 4, f"{med.source}: medium", f"fields of {n} "
+                 f"light(s) x {n_ch} channel(s) on a {'x'.join(map(str, med.shape))} grid")
+    phi = np.empty((n, n_ch) + med.shape, np.float32)
     phia = np.empty_like(phi)
     diffusion = scene.method.isotropic == "diffusion"
     if diffusion:
-        check_memory(4 * n * med.density.size * 4, f"{med.source}: medium",
-                     f"diffusion fields of {n} light(s)")
-        phid = np.empty((n, 1) + med.shape, np.float32)
-        flux = np.empty((n, 3) + med.shape, np.float32)
+        check_memory(4 * n * n_ch * med.density.size * 4, f"{med.source}: medium",
+                     f"diffusion fields of {n} light(s) x {n_ch} channel(s)")
+        phid = np.empty((n, n_ch) + med.shape, np.float32)
+        flux = np.empty((n, n_ch, 3) + med.shape, np.float32)
     else:
-        phid = np.zeros((0, 1, 1, 1, 1), np.float32)
-        flux = np.zeros((0, 3, 1, 1, 1), np.float32)
+        phid = np.zeros((0, n_ch, 1, 1, 1), np.float32)
+        flux = np.zeros((0, n_ch, 3, 1, 1, 1), np.float32)
     sols = []
     t_res = t_prop = t_fields = t_diff = 0.0
     for i, light in enumerate(scene.lights):
+      for ch in range(n_ch):
         cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
-        ds = solve_light(med, light, scene.method, cb)
+        ds = solve_light(med, light, scene.method, cb, ch)
+        ds.light_index = i
         t0 = time.perf_counter()
         d = ds.domain
-        domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, 0])
-        domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, 0])
+        domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch])
+        domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch])
         if diffusion:
             dr = ds.result.diffusion
-            domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, 0])
+            domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, ch])
             for c in range(3):          # world component c of J = sum over domain axes
                 Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
                 domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, dr.h,
-                                med.origin, med.voxel_size, flux[i, c])
+                                med.origin, med.voxel_size, flux[i, ch, c])
         t_fields += time.perf_counter() - t0
         t_res += ds.seconds_resample
         t_prop += ds.result.seconds

@@ -78,17 +78,30 @@ def _llvm_version(path: str) -> int:
 def mitsuba_dict(scene: Scene, mi, max_depth: int = 1024, spp: int = 16) -> dict:
     """The Mitsuba 3 scene dict of ``scene`` (``mi`` = the imported module with a variant set)."""
     med, cam = scene.medium, scene.camera
+    if med.g_per_voxel:
+        raise PopvolError(f"{med.source}: Mitsuba 3 takes one g per medium; a per-voxel g grid has no "
+                          "reference export")
     lo, hi = med.bounds
     T = mi.ScalarTransform4f
-    grid = np.ascontiguousarray(med.density.transpose(2, 1, 0)[..., None], np.float32)
-    medium = {
-        "type": "heterogeneous",
-        "albedo": float(med.albedo),
-        "scale": float(med.scale),
-        "sigma_t": {"type": "gridvolume", "grid": mi.VolumeGrid(grid), "filter_type": "trilinear",
-                    "to_world": T().translate(lo.tolist()).scale((hi - lo).tolist())},
-        "phase": {"type": "hg", "g": float(med.g)},
-    }
+    to_world = T().translate(lo.tolist()).scale((hi - lo).tolist())
+
+    def volume(arr):          # popvol [x, y, z] or [x, y, z, c] -> Mitsuba [z, y, x, c]
+        a = arr[..., None] if arr.ndim == 3 else arr
+        return {"type": "gridvolume", "grid": mi.VolumeGrid(np.ascontiguousarray(a.transpose(2, 1, 0, 3), np.float32)),
+                "filter_type": "trilinear", "to_world": to_world}
+
+    if np.all(med.scale == med.scale[0]):
+        sigma_t, scale = volume(med.density), float(med.scale[0])
+    else:                     # RGB extinction: a 3-channel grid
+        sigma_t, scale = volume(med.density[..., None] * med.scale.astype(np.float32)), 1.0
+    if med.albedo_per_voxel:
+        albedo = volume(med.albedo)
+    elif np.all(med.albedo == med.albedo[0]):
+        albedo = float(med.albedo[0])
+    else:
+        albedo = {"type": "constvolume", "value": {"type": "rgb", "value": med.albedo.tolist()}}
+    medium = {"type": "heterogeneous", "albedo": albedo, "scale": scale, "sigma_t": sigma_t,
+              "phase": {"type": "hg", "g": float(med.g)}}
     centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     extent = float(np.linalg.norm(hi - lo) + np.linalg.norm(cam.origin - centre))
     fwd, right, up = cam.basis()
@@ -121,7 +134,7 @@ def scene_digest(scene: Scene) -> str:
     h = hashlib.sha256()
     med, cam = scene.medium, scene.camera
     h.update(np.ascontiguousarray(med.density).tobytes())
-    for v in (med.voxel_size, med.origin, [med.scale, med.albedo, med.g], cam.origin, cam.target, cam.up,
+    for v in (med.voxel_size, med.origin, med.scale, med.albedo, med.g, cam.origin, cam.target, cam.up,
               [cam.fov, cam.width, cam.height], scene.background):
         h.update(np.asarray(v, np.float64).tobytes())
     for l in scene.lights:

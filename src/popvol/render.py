@@ -25,7 +25,10 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
     lo, hi = med.bounds
     step = float(m.step * med.voxel_size.min())
     out = np.zeros((cam.height, cam.width, 3), np.float32)
-    render_kernel(med.density, float(med.scale), med.albedo_grid(), med.g_grid(), med.origin,
+    # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb
+    albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
+                          else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
+    render_kernel(med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(), med.origin,
                   med.voxel_size, lo, hi, solution.phi, solution.phia, solution.phid, solution.flux,
                   np.ascontiguousarray(solution.directions, np.float64),
                   np.ascontiguousarray(solution.irradiance, np.float64),

@@ -172,6 +172,9 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
     _known(m, _MEDIUM_KEYS, "medium.", src)
     kind = m.get("type", "file" if "file" in m else "procedural")
     optics = {k: m[k] for k in ("scale", "albedo", "g") if k in m}
+    for key in ("albedo", "g"):              # per-voxel grids: {file = "...", grid = "..."}
+        if isinstance(optics.get(key), dict):
+            optics[key] = _optics_grid(optics[key], key, m, src, base)
     if kind == "procedural":
         from .procedural import demo_medium
         res = _int_in(m.get("resolution", 96), "medium.resolution", src, 8, 1024)
@@ -191,6 +194,19 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
         origin = m.get("origin", vol.origin)
         return Medium(vol.density, voxel, origin, source=src, **_optics(None, optics))
     raise PopvolError(f"{src}: medium.type = {kind!r}; allowed: 'procedural', 'file'")
+
+
+def _optics_grid(spec: dict, key: str, m: dict, src: str, base: Path) -> np.ndarray:
+    """A per-voxel albedo or g grid: ``{file = ..., grid = ...}`` (file defaults to the medium's,
+    grid to the key's name). The grid must match the density's shape (checked by Medium)."""
+    from .io.volumes import read_volume
+    _known(spec, {"file", "grid"}, f"medium.{key}.", src)
+    if "file" not in spec and "file" not in m:
+        raise PopvolError(f"{src}: medium.{key} is a grid table but names no file (and the medium has none)")
+    path = Path(spec.get("file", m.get("file")))
+    if not path.is_absolute():
+        path = base / path
+    return read_volume(path, spec.get("grid", key), signed=(key == "g")).density
 
 
 def _optics(med, given: dict) -> dict:

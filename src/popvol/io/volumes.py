@@ -27,8 +27,9 @@ class VolumeData:
     source: str
 
 
-def validate_density(density, source: str, field: str = "density") -> np.ndarray:
-    """The density checks every reader shares; returns float32, C-contiguous."""
+def validate_density(density, source: str, field: str = "density", signed: bool = False) -> np.ndarray:
+    """The density checks every reader shares; returns float32, C-contiguous. ``signed`` grids
+    (e.g. a per-voxel g) may be negative."""
     d = np.asarray(density)
     if d.ndim != 3 or min(d.shape) < 1:
         raise PopvolError(f"{source}: {field} must be a 3-D array with every size >= 1, got shape {d.shape}")
@@ -39,7 +40,7 @@ def validate_density(density, source: str, field: str = "density") -> np.ndarray
     if bad.any():
         first = tuple(int(v) for v in np.argwhere(bad)[0])
         raise PopvolError(f"{source}: {field} has {int(bad.sum())} NaN/inf voxels (first at {first}); it must be finite")
-    if d.min() < 0:
+    if not signed and d.min() < 0:
         at = tuple(int(v) for v in np.unravel_index(int(np.argmin(d)), d.shape))
         raise PopvolError(f"{source}: {field} has negative values (min {float(d.min()):g} at {at}); it must be >= 0")
     return d
@@ -61,7 +62,7 @@ def _vec3(value, source: str, field: str, default: float) -> np.ndarray:
     return v
 
 
-def read_npz(path, grid: str | None = None) -> VolumeData:
+def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
     """Dense grid from .npz: array ``grid`` (default ``density``), optional ``voxel_size``
     (1 or 3 values) and ``world_of_ijk_min`` (centre of voxel (0, 0, 0)); defaults 1 and 0."""
     path = Path(path)
@@ -82,11 +83,11 @@ def read_npz(path, grid: str | None = None) -> VolumeData:
     voxel = _vec3(voxel, str(path), "voxel_size", 1.0)
     if np.any(voxel <= 0):
         raise PopvolError(f"{path}: voxel_size = {voxel.tolist()} must be > 0")
-    return VolumeData(validate_density(density, str(path), key), voxel,
+    return VolumeData(validate_density(density, str(path), key, signed), voxel,
                       _vec3(origin, str(path), "world_of_ijk_min", 0.0), str(path))
 
 
-def read_vol(path) -> VolumeData:
+def read_vol(path, signed: bool = False) -> VolumeData:
     """Mitsuba grid volume (.vol): 'VOL', version 3, int32 encoding (1 = float32), int32
     xres, yres, zres, channels, 6 float32 bbox (the world AABB of the voxel cells), then
     float32 data with x fastest."""
@@ -114,7 +115,7 @@ def read_vol(path) -> VolumeData:
     if not np.all(np.isfinite(bbox)) or np.any(hi <= lo):
         raise PopvolError(f"{path}: .vol bbox {bbox.tolist()} must have max > min on every axis")
     data = np.frombuffer(raw, "<f4", offset=VOL_HEADER_BYTES).reshape(nz, ny, nx)
-    density = validate_density(data.transpose(2, 1, 0), str(path))
+    density = validate_density(data.transpose(2, 1, 0), str(path), "density", signed)
     voxel = (hi - lo) / np.array([nx, ny, nz])
     return VolumeData(density, voxel, lo + voxel / 2, str(path))
 
@@ -131,8 +132,9 @@ def write_vol(path, density, bbox_min, bbox_max) -> None:
         raise PopvolError(f"{path}: cannot write ({e.strerror})") from None
 
 
-def read_volume(path, grid: str | None = None) -> VolumeData:
-    """Read a density grid, choosing the reader by suffix (.npz, .vol)."""
+def read_volume(path, grid: str | None = None, signed: bool = False) -> VolumeData:
+    """Read a grid, choosing the reader by suffix (.npz, .vol, .vdb). Densities must be >= 0;
+    ``signed`` grids (a per-voxel g) may be negative."""
     path = Path(path)
     if not path.exists():
         raise PopvolError(f"{path}: volume file not found")
@@ -140,15 +142,16 @@ def read_volume(path, grid: str | None = None) -> VolumeData:
         raise PopvolError(f"{path}: not a file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return read_npz(path, grid)
+        return read_npz(path, grid, signed)
     if suffix == ".vol":
         if grid not in (None, "density"):
             raise PopvolError(f"{path}: .vol files hold one unnamed grid; remove medium.grid = {grid!r}")
-        return read_vol(path)
+        return read_vol(path, signed)
     if suffix == ".vdb":
         from .vdb import read_vdb
         density, voxel, origin, _ = read_vdb(path, grid)
-        return VolumeData(validate_density(density, str(path), grid or "density"), voxel, origin, str(path))
+        return VolumeData(validate_density(density, str(path), grid or "density", signed), voxel, origin,
+                          str(path))
     if suffix == ".nvdb":
         raise PopvolError(f"{path}: NanoVDB is not read (no light, maintained reader on PyPI); read the "
                           "OpenVDB .vdb it came from, or convert it to .npz (e.g. warp-lang: "

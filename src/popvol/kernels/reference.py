@@ -164,7 +164,9 @@ def trilinear(grid, q):
 
 
 def render_pixel(scene, solution, px, py):
-    """Twin of kernels.render.render_kernel for one pixel centre (no jitter): linear RGB (3,)."""
+    """Twin of kernels.render.render_kernel for one pixel centre (no jitter): linear RGB (3,).
+    Channel c of the fields (grey solutions have one) lights colour c; sigma_t, albedo and the
+    view transmittance are per colour."""
     med, cam, m = scene.medium, scene.camera, scene.method
     fwd, right, up = cam.basis()
     tan_half = np.tan(np.radians(cam.fov) / 2)
@@ -178,38 +180,41 @@ def render_pixel(scene, solution, px, py):
     t0 = max(0.0, np.nanmax(np.minimum(ta, tb)))
     t1 = np.nanmin(np.maximum(ta, tb))
     step = m.step * med.voxel_size.min()
-    L, Tv, t = np.zeros(3), 1.0, t0
+    edge = np.asarray(med.shape) - 0.5
+    n_ch = solution.phi.shape[1]
+    L, Tv, t = np.zeros(3), np.ones(3), t0
     while t < t1:
         ds = min(step, t1 - t)
         x = cam.origin + (t + 0.5 * ds) * d
         t += ds
-        q = (x - med.origin) / med.voxel_size
-        rho = float(trilinear(med.density, np.clip(q, -0.5, np.asarray(med.shape) - 0.5)))
+        q = np.clip((x - med.origin) / med.voxel_size, -0.5, edge)
+        rho = float(trilinear(med.density, q))
         if rho <= 0:
             continue
-        sigma_t = med.scale * rho
-        sigma_s = med.albedo * sigma_t
+        albedo = (float(trilinear(med.albedo, q)) * np.ones(3) if med.albedo_per_voxel
+                  else np.asarray(med.albedo, float))
+        g = float(trilinear(med.g, q)) if med.g_per_voxel else med.g
         Ls = np.zeros(3)
         for l in range(len(solution.directions)):
-            p = float(trilinear(solution.phi[l, 0], np.clip(q, -0.5, np.asarray(med.shape) - 0.5)))
-            if p <= 0:
-                continue
-            A = float(trilinear(solution.phia[l, 0], np.clip(q, -0.5, np.asarray(med.shape) - 0.5))) / p
-            mu = -np.dot(solution.directions[l], d)
-            Ls += p * hg.f_hg(mu, np.clip(med.g * A, -0.9999, 0.9999)) * solution.irradiance[l]
-        for l in range(solution.phid.shape[0]):          # diffuse lobes, about their flux J
-            qc = np.clip(q, -0.5, np.asarray(med.shape) - 0.5)
-            pd = float(trilinear(solution.phid[l, 0], qc))
-            if pd <= 0:
-                continue
-            J = np.array([float(trilinear(solution.flux[l, c], qc)) for c in range(3)])
-            jn = np.linalg.norm(J)
-            lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, med.g * min(jn / pd, 1 / 3))
-            Ls += pd * lobe * solution.irradiance[l]
+            for c in range(n_ch):
+                E = solution.irradiance[l] if n_ch == 1 else np.eye(3)[c] * solution.irradiance[l]
+                p = float(trilinear(solution.phi[l, c], q))
+                if p > 0:
+                    A = float(trilinear(solution.phia[l, c], q)) / p
+                    mu = -np.dot(solution.directions[l], d)
+                    Ls += p * hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)) * E
+                if solution.phid.shape[0]:             # the diffuse lobe, about its flux J
+                    pd = float(trilinear(solution.phid[l, c], q))
+                    if pd > 0:
+                        J = np.array([float(trilinear(solution.flux[l, c, k], q)) for k in range(3)])
+                        jn = np.linalg.norm(J)
+                        lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, g * min(jn / pd, 1 / 3))
+                        Ls += pd * lobe * E
+        sigma_t = med.scale * rho
         T_seg = np.exp(-sigma_t * ds)
-        L += Tv * (1 - T_seg) / sigma_t * sigma_s * Ls
+        L += np.where(sigma_t > 0, Tv * (1 - T_seg) * albedo * Ls, 0.0)
         Tv *= T_seg
-        if Tv < 1e-4:
-            Tv = 0.0
+        if Tv.max() < 1e-4:
+            Tv[:] = 0.0
             break
     return L + Tv * np.asarray(scene.background)

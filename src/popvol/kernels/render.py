@@ -80,15 +80,15 @@ def ray_box(o, d, lo, hi):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _diffuse_lobe(phid, flux, l, i0, i1, j0, j1, k0, k1, fx, fy, fz, d, gg):
+def _diffuse_lobe(phid, flux, i0, i1, j0, j1, k0, k1, fx, fy, fz, d, gg):
     """phi_d * f_hg(-d . J/|J|; g |J| / phi_d): the diffuse light's lobe about its own flux J,
     convolved with the phase function (see popvol/diffusion.py), seen along the camera ray d."""
     pd = _interp(phid, i0, i1, j0, j1, k0, k1, fx, fy, fz)
     if pd <= 0.0:
         return 0.0
-    jx = _interp(flux[l, 0], i0, i1, j0, j1, k0, k1, fx, fy, fz)
-    jy = _interp(flux[l, 1], i0, i1, j0, j1, k0, k1, fx, fy, fz)
-    jz = _interp(flux[l, 2], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+    jx = _interp(flux[0], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+    jy = _interp(flux[1], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+    jz = _interp(flux[2], i0, i1, j0, j1, k0, k1, fx, fy, fz)
     jn = math.sqrt(jx * jx + jy * jy + jz * jz)
     if jn <= 0.0:
         return pd * INV_FOUR_PI
@@ -98,16 +98,18 @@ def _diffuse_lobe(phid, flux, l, i0, i1, j0, j1, k0, k1, fx, fy, fz, d, gg):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
+def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi,
                   phi, phia, phid, flux, light_dir, irradiance, background,
                   cam_origin, cam_basis, tan_half, width, height,
                   step, spp, seed, jitter, out):
     """Render into ``out`` float32 (height, width, 3), linear radiance.
 
-    density: float32 (nx, ny, nz); albedo, g_grid: float32 grids (1,1,1) or density-shaped;
+    density: float32 (nx, ny, nz); scale: float64 (3,), sigma_t per channel = scale * density;
+    albedo, g_grid: float32 grids (1,1,1) or density-shaped; albedo_rgb: float64 (3,), the
+    albedo of channel c is albedo * albedo_rgb[c];
     phi, phia: float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit irradiance;
     phid, flux: the diffuse lobe's fluence (n_lights, n_channels, ...) and world flux vector
-    (n_lights, 3, ...), or arrays with n_lights = 0 when there is no diffusion stage;
+    (n_lights, n_channels, 3, ...), or arrays with n_lights = 0 when there is no diffusion stage;
     light_dir, irradiance: float64 (n_lights, 3); background: float64 (3,);
     cam_basis rows forward, right, up; step in world units; jitter: random sub-pixel and
     along-ray offsets (False: pixel centres and segment midpoints, for tests).
@@ -117,13 +119,13 @@ def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
     n_lights = phi.shape[0]
     n_ch = phi.shape[1]
     aspect = width / height
-    const_optics = albedo.size == 1 and g_grid.size == 1
-    d = np.empty(3)
-    rgb = np.empty(3)
+    const_albedo = albedo.size == 1      # else a grid of the density's shape
+    const_g = g_grid.size == 1
     for py in nb.prange(height):
         d = np.empty(3)
         rgb = np.empty(3)
         ls = np.empty(3)
+        Tv = np.empty(3)
         for px in range(width):
             acc0 = 0.0
             acc1 = 0.0
@@ -144,10 +146,9 @@ def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
                 norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
                 for a in range(3):
                     d[a] /= norm
-                rgb[0] = 0.0
-                rgb[1] = 0.0
-                rgb[2] = 0.0
-                Tv = 1.0
+                for c in range(3):
+                    rgb[c] = 0.0
+                    Tv[c] = 1.0
                 t0, t1 = ray_box(cam_origin, d, lo, hi)
                 t = t0
                 while t < t1:
@@ -163,14 +164,14 @@ def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
                     rho = _interp(density, i0, i1, j0, j1, k0, k1, fx, fy, fz)
                     if rho <= 0.0:
                         continue
-                    sigma_t = scale * rho
-                    if const_optics:
+                    if const_albedo:
                         alb = albedo[0, 0, 0]
-                        gg = g_grid[0, 0, 0]
                     else:
                         alb = _interp(albedo, i0, i1, j0, j1, k0, k1, fx, fy, fz)
+                    if const_g:
+                        gg = g_grid[0, 0, 0]
+                    else:
                         gg = _interp(g_grid, i0, i1, j0, j1, k0, k1, fx, fy, fz)
-                    sigma_s = alb * sigma_t
                     ls[0] = 0.0
                     ls[1] = 0.0
                     ls[2] = 0.0
@@ -188,7 +189,7 @@ def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
                                     gA = -0.9999
                                 val = p * f_hg(mu, gA)
                             if has_diffuse:
-                                val += _diffuse_lobe(phid[l, c], flux, l, i0, i1, j0, j1, k0, k1,
+                                val += _diffuse_lobe(phid[l, c], flux[l, c], i0, i1, j0, j1, k0, k1,
                                                      fx, fy, fz, d, gg)
                             if n_ch == 1:
                                 ls[0] += val * irradiance[l, 0]
@@ -196,18 +197,20 @@ def render_kernel(density, scale, albedo, g_grid, origin, voxel, lo, hi,
                                 ls[2] += val * irradiance[l, 2]
                             else:
                                 ls[c] += val * irradiance[l, c]
-                    Tseg = math.exp(-sigma_t * ds)
-                    w = Tv * (1.0 - Tseg) / sigma_t * sigma_s
-                    rgb[0] += w * ls[0]
-                    rgb[1] += w * ls[1]
-                    rgb[2] += w * ls[2]
-                    Tv *= Tseg
-                    if Tv < T_MIN:
-                        Tv = 0.0
+                    for c in range(3):
+                        sigma_t = scale[c] * rho
+                        if sigma_t > 0.0:
+                            Tseg = math.exp(-sigma_t * ds)
+                            # int_seg T dt = Tv (1 - Tseg) / sigma_t, times sigma_s = albedo sigma_t
+                            rgb[c] += Tv[c] * (1.0 - Tseg) * alb * albedo_rgb[c] * ls[c]
+                            Tv[c] *= Tseg
+                    if max(Tv[0], Tv[1], Tv[2]) < T_MIN:
+                        for c in range(3):
+                            Tv[c] = 0.0
                         break
-                acc0 += rgb[0] + Tv * background[0]
-                acc1 += rgb[1] + Tv * background[1]
-                acc2 += rgb[2] + Tv * background[2]
+                acc0 += rgb[0] + Tv[0] * background[0]
+                acc1 += rgb[1] + Tv[1] * background[1]
+                acc2 += rgb[2] + Tv[2] * background[2]
             out[py, px, 0] = acc0 / spp
             out[py, px, 1] = acc1 / spp
             out[py, px, 2] = acc2 / spp
