@@ -21,12 +21,15 @@ class DirectionalLight:
         direction: float64 (3,), unit vector, the direction the light travels.
         irradiance: float64 (3,), RGB irradiance, >= 0.
         a0: anisotropy of the injected lobe about ``direction`` (1 = perfectly collimated).
+        from_environment: one of the K lights an environment map was decomposed into (the
+            reference export lights the scene with the map itself instead).
     """
 
     direction: np.ndarray
     irradiance: np.ndarray
     a0: float = 1.0
     source: str = "<light>"
+    from_environment: bool = False
 
     def __post_init__(self):
         d = np.asarray(self.direction, dtype=np.float64)

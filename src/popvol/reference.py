@@ -121,9 +121,13 @@ def mitsuba_dict(scene: Scene, mi, max_depth: int = 1024, spp: int = 16) -> dict
                             "to_world": T().translate(centre.tolist()).scale(half.tolist())},
     }
     bg = np.asarray(scene.background, np.float64)
-    if np.any(bg > 0):
+    if scene.environment is not None:        # the map itself lights the scene and is seen
+        d["environment"] = {"type": "envmap", "bitmap": mi.Bitmap(scene.environment.radiance)}
+    elif np.any(bg > 0):
         d["background"] = {"type": "constant", "radiance": {"type": "rgb", "value": bg.tolist()}}
     for i, light in enumerate(scene.lights):
+        if light.from_environment:
+            continue
         d[f"light_{i}"] = {"type": "directional", "direction": light.direction.tolist(),
                            "irradiance": {"type": "rgb", "value": light.irradiance.tolist()}}
     return d
@@ -139,6 +143,8 @@ def scene_digest(scene: Scene) -> str:
         h.update(np.asarray(v, np.float64).tobytes())
     for l in scene.lights:
         h.update(np.concatenate([l.direction, l.irradiance]).astype(np.float64).tobytes())
+    if scene.environment is not None:
+        h.update(np.ascontiguousarray(scene.environment.radiance).tobytes())
     return h.hexdigest()[:16]
 
 

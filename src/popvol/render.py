@@ -32,13 +32,20 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
                   med.voxel_size, lo, hi, solution.phi, solution.phia, solution.phid, solution.flux,
                   np.ascontiguousarray(solution.directions, np.float64),
                   np.ascontiguousarray(solution.irradiance, np.float64),
-                  np.asarray(scene.background, np.float64), cam.origin, cam.basis(),
+                  background_map(scene), cam.origin, cam.basis(),
                   float(np.tan(np.radians(cam.fov) / 2)), cam.width, cam.height, step, m.spp,
                   m.seed, jitter, out)
     if not np.all(np.isfinite(out)):
         raise PopvolError("internal error: the rendered image has non-finite pixels; please report it "
                           f"with the scene ({scene.source})")
     return out
+
+
+def background_map(scene: Scene) -> np.ndarray:
+    """float32 (1, 1, 3) constant background, or the environment map (H, 2H, 3)."""
+    if scene.environment is not None:
+        return scene.environment.radiance
+    return np.asarray(scene.background, np.float32).reshape(1, 1, 3)
 
 
 def render_timed(scene: Scene) -> tuple[np.ndarray, Solution, dict]:

@@ -86,6 +86,7 @@ class Scene:
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     method: Method = field(default_factory=Method)
     source: str = "<scene>"
+    environment: object = None     # envmap.EnvMap: the background, and the source of some lights
 
 
 # ---------------------------------------------------------------------------------------------
@@ -95,7 +96,9 @@ class Scene:
 _TOP_KEYS = {"medium", "lights", "light", "background", "camera", "method"}
 _MEDIUM_KEYS = {"type", "file", "grid", "resolution", "seed", "extent", "scale", "albedo", "g",
                 "voxel_size", "origin"}
-_LIGHT_KEYS = {"type", "direction", "irradiance", "a0"}
+_LIGHT_KEYS = {"directional": {"type", "direction", "irradiance", "a0"},
+               "envmap": {"type", "file", "scale", "lights"},
+               "sky": {"type", "zenith", "horizon", "ground", "lights"}}
 _CAMERA_KEYS = {"origin", "target", "up", "fov", "width", "height"}
 _BACKGROUND_KEYS = {"type", "radiance"}
 
@@ -153,7 +156,14 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
         raw_lights = [raw_lights]
     if not isinstance(raw_lights, list) or not raw_lights:
         raise PopvolError(f"{source}: lights must be a non-empty list of [[lights]] tables")
-    lights = [_light(l, f"lights[{i}]", source) for i, l in enumerate(raw_lights)]
+    lights, environment = [], None
+    for i, l in enumerate(raw_lights):
+        got = _light(l, f"lights[{i}]", source, Path(base_dir))
+        if isinstance(got, list):                  # an environment, decomposed
+            if environment is not None:
+                raise PopvolError(f"{source}: lights[{i}]: only one environment light (envmap or sky) per scene")
+            environment, got = got
+        lights += got if isinstance(got, list) else [got]
 
     bg = data.get("background", {})
     if not isinstance(bg, dict):
@@ -161,11 +171,14 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
     _known(bg, _BACKGROUND_KEYS, "background.", source)
     if bg.get("type", "constant") != "constant":
         raise PopvolError(f"{source}: background.type = {bg['type']!r}; allowed: 'constant'")
+    if environment is not None and "radiance" in bg:
+        raise PopvolError(f"{source}: background.radiance is given, but the background of a scene with "
+                          "an environment light is the environment map itself; remove it")
     background = _rgb(bg.get("radiance", 0.0), "background.radiance", source)
 
     method = Method(**_method_fields(data.get("method", {}), source)).validate(source)
     camera = _camera(data.get("camera"), medium, source)
-    return Scene(medium, lights, camera, background, method, source)
+    return Scene(medium, lights, camera, background, method, source, environment)
 
 
 def _medium(m: dict, src: str, base: Path) -> Medium:
@@ -217,13 +230,28 @@ def _optics(med, given: dict) -> dict:
     return out
 
 
-def _light(l, name: str, src: str) -> DirectionalLight:
+def _light(l, name: str, src: str, base: Path = Path(".")):
+    """A DirectionalLight, or for an environment [EnvMap, its K directional lights]."""
     if not isinstance(l, dict):
         raise PopvolError(f"{src}: {name} must be a table")
-    _known(l, _LIGHT_KEYS, f"{name}.", src)
     kind = l.get("type", "directional")
-    if kind != "directional":
-        raise PopvolError(f"{src}: {name}.type = {kind!r}; allowed: 'directional'")
+    if kind not in _LIGHT_KEYS:
+        raise PopvolError(f"{src}: {name}.type = {kind!r}; allowed: {', '.join(repr(k) for k in _LIGHT_KEYS)}")
+    _known(l, _LIGHT_KEYS[kind], f"{name}.", src)
+    if kind in ("envmap", "sky"):
+        from . import envmap
+        k = _int_in(l.get("lights", 12), f"{name}.lights", src, 1, 256)
+        if kind == "envmap":
+            if "file" not in l:
+                raise PopvolError(f"{src}: {name}.file is required (an OpenEXR lat-long map)")
+            path = Path(l["file"])
+            env = envmap.load(path if path.is_absolute() else base / path,
+                              _rgb(l.get("scale", 1.0), f"{name}.scale", src))
+        else:
+            env = envmap.sky(_rgb(l.get("zenith", [0.2, 0.35, 0.8]), f"{name}.zenith", src),
+                             _rgb(l.get("horizon", [0.6, 0.7, 0.9]), f"{name}.horizon", src),
+                             _rgb(l.get("ground", 0.0), f"{name}.ground", src), source=f"{src}: {name}")
+        return [env, envmap.decompose(env, k)]
     if "direction" not in l:
         raise PopvolError(f"{src}: {name}.direction is required (the direction the light travels)")
     return DirectionalLight(l["direction"], _rgb(l.get("irradiance", 1.0), f"{name}.irradiance", src),

@@ -217,4 +217,21 @@ def render_pixel(scene, solution, px, py):
         if Tv.max() < 1e-4:
             Tv[:] = 0.0
             break
-    return L + Tv * np.asarray(scene.background)
+    return L + Tv * background_twin(scene, d)
+
+
+def background_twin(scene, d):
+    """Twin of kernels.render.background_radiance: the constant, or the environment map's
+    bilinear value along d (Mitsuba's envmap convention, texel centres, wrapping in u)."""
+    if scene.environment is None:
+        return np.asarray(scene.background, float)
+    m = scene.environment.radiance.astype(float)
+    H, W = m.shape[:2]
+    u = (np.arctan2(d[0], -d[2]) / (2 * np.pi)) % 1.0
+    v = np.arccos(np.clip(d[1], -1, 1)) / np.pi
+    x, y = u * W - 0.5, float(np.clip(v * H - 0.5, 0, H - 1))
+    j0 = int(np.floor(x))
+    i0 = min(int(y), H - 2)
+    fx, fy = x - j0, y - i0
+    rows = [m[i, j0 % W] * (1 - fx) + m[i, (j0 + 1) % W] * fx for i in (i0, min(i0 + 1, H - 1))]
+    return rows[0] * (1 - fy) + rows[1] * fy

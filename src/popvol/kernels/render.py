@@ -97,6 +97,32 @@ def _diffuse_lobe(phid, flux, i0, i1, j0, j1, k0, k1, fx, fy, fz, d, gg):
     return pd * f_hg(mu, gg * A)
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def background_radiance(bg, d, c):
+    """Channel c of the background seen along direction d: a constant (bg of shape (1, 1, 3))
+    or a lat-long map in Mitsuba's envmap convention (popvol/envmap.py), bilinear between
+    texel centres, wrapping in u."""
+    H = bg.shape[0]
+    W = bg.shape[1]
+    if H == 1 and W == 1:
+        return bg[0, 0, c]
+    u = math.atan2(d[0], -d[2]) * (0.5 / math.pi)
+    u -= math.floor(u)
+    v = math.acos(min(1.0, max(-1.0, d[1]))) / math.pi
+    x = u * W - 0.5
+    y = min(max(v * H - 0.5, 0.0), H - 1.0)
+    j0 = int(math.floor(x))
+    fx = x - j0
+    i0 = min(int(y), H - 2) if H > 1 else 0
+    fy = y - i0
+    i1 = min(i0 + 1, H - 1)
+    ja = j0 % W
+    jb = (j0 + 1) % W
+    top = bg[i0, ja, c] * (1.0 - fx) + bg[i0, jb, c] * fx
+    bot = bg[i1, ja, c] * (1.0 - fx) + bg[i1, jb, c] * fx
+    return top * (1.0 - fy) + bot * fy
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi,
                   phi, phia, phid, flux, light_dir, irradiance, background,
@@ -110,7 +136,8 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
     phi, phia: float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit irradiance;
     phid, flux: the diffuse lobe's fluence (n_lights, n_channels, ...) and world flux vector
     (n_lights, n_channels, 3, ...), or arrays with n_lights = 0 when there is no diffusion stage;
-    light_dir, irradiance: float64 (n_lights, 3); background: float64 (3,);
+    light_dir, irradiance: float64 (n_lights, 3); background: float32 (1, 1, 3) (a constant)
+    or (H, 2H, 3) (a lat-long environment map, see background_radiance);
     cam_basis rows forward, right, up; step in world units; jitter: random sub-pixel and
     along-ray offsets (False: pixel centres and segment midpoints, for tests).
     """
@@ -208,9 +235,9 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
                         for c in range(3):
                             Tv[c] = 0.0
                         break
-                acc0 += rgb[0] + Tv[0] * background[0]
-                acc1 += rgb[1] + Tv[1] * background[1]
-                acc2 += rgb[2] + Tv[2] * background[2]
+                acc0 += rgb[0] + Tv[0] * background_radiance(background, d, 0)
+                acc1 += rgb[1] + Tv[1] * background_radiance(background, d, 1)
+                acc2 += rgb[2] + Tv[2] * background_radiance(background, d, 2)
             out[py, px, 0] = acc0 / spp
             out[py, px, 1] = acc1 / spp
             out[py, px, 2] = acc2 / spp

@@ -1,0 +1,162 @@
+"""Environment light: a lat-long radiance map (or an analytic sky) seen as the background and
+decomposed into K directional lights for propagation (METHOD.md step 1).
+
+Convention (Mitsuba 3's ``envmap``, so that the reference export is the map itself): the texel
+at row i, column j of an (H, W) map holds the radiance arriving FROM the direction
+    theta = (i + 1/2) pi / H,  phi = (j + 1/2) 2 pi / W,
+    d = (sin theta sin phi, cos theta, -sin theta cos phi)        (y up; theta from +y),
+so u = atan2(d.x, -d.z) / 2 pi, v = acos(d.y) / pi. Maps must be 2:1 (W = 2 H).
+
+Decomposition (median cut): starting from the whole sphere, the region with the most energy is
+cut in two along its longer angular extent at its energy median, until there are K regions.
+Region r becomes a directional light travelling along -m_r / |m_r|, with
+    E_r = sum_r L dOmega          (RGB; the light's irradiance parameter),
+    m_r = sum_r lum(L) omega dOmega,   a0_r = |m_r| / sum_r lum(L) dOmega,
+so the lights' E sum to the map's integral of L over the sphere (the fluence it creates in
+empty space). A sun (texels brighter than half the brightest, when that is 50x the map's mean)
+is taken out first as a light of its own; median cut alone would split it among regions.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import PopvolError
+from .lights import DirectionalLight
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+@dataclass
+class EnvMap:
+    radiance: np.ndarray       # float32 (H, W, 3), W = 2 H, linear RGB radiance
+    source: str = "<envmap>"
+
+    def __post_init__(self):
+        r = np.asarray(self.radiance, np.float32)
+        if r.ndim != 3 or r.shape[2] != 3 or r.shape[0] < 1:
+            raise PopvolError(f"{self.source}: environment map must be an RGB image, got shape {r.shape}")
+        if r.shape[1] != 2 * r.shape[0]:
+            raise PopvolError(f"{self.source}: environment map is {r.shape[1]}x{r.shape[0]}; a lat-long map "
+                              "is twice as wide as it is high")
+        if not np.all(np.isfinite(r)) or r.min() < 0:
+            raise PopvolError(f"{self.source}: environment map has NaN, infinite or negative texels")
+        self.radiance = np.ascontiguousarray(r)
+
+
+def texel_geometry(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    """Directions (H, W, 3) of texel centres (toward the environment) and solid angles (H, W)."""
+    theta = (np.arange(H) + 0.5) * np.pi / H
+    phi = (np.arange(W) + 0.5) * 2 * np.pi / W
+    T, P = np.meshgrid(theta, phi, indexing="ij")
+    d = np.stack([np.sin(T) * np.sin(P), np.cos(T), -np.sin(T) * np.cos(P)], axis=-1)
+    edges = np.cos(np.arange(H + 1) * np.pi / H)
+    omega = (edges[:-1] - edges[1:])[:, None] * (2 * np.pi / W) * np.ones((1, W))
+    return d, omega
+
+
+def integral(env: EnvMap) -> np.ndarray:
+    """int L dOmega over the sphere, RGB (the fluence the map creates in empty space)."""
+    _, omega = texel_geometry(*env.radiance.shape[:2])
+    return (env.radiance * omega[..., None]).sum(axis=(0, 1), dtype=np.float64)
+
+
+def sky(zenith, horizon, ground=(0.0, 0.0, 0.0), height: int = 64, source: str = "<sky>") -> EnvMap:
+    """An analytic sky: radiance blends from ``horizon`` (elevation 0) to ``zenith`` (straight
+    up) as sqrt(sin(elevation)); ``ground`` below the horizon."""
+    d, _ = texel_geometry(height, 2 * height)
+    el = np.clip(d[..., 1], 0.0, 1.0)[..., None]
+    t = np.sqrt(el)
+    up = (1 - t) * np.asarray(horizon, float) + t * np.asarray(zenith, float)
+    rad = np.where(d[..., 1:2] >= 0, up, np.asarray(ground, float))
+    return EnvMap(rad.astype(np.float32), source)
+
+
+def load(path, scale=1.0) -> EnvMap:
+    """A lat-long map from an OpenEXR file, times ``scale`` (1 or 3 numbers)."""
+    from pathlib import Path
+    from .io.images import read_exr
+    path = Path(path)
+    if not path.is_file():
+        raise PopvolError(f"{path}: environment map not found")
+    if path.suffix.lower() != ".exr":
+        raise PopvolError(f"{path}: popvol reads environment maps as OpenEXR (.exr); convert "
+                          f"{path.suffix or 'it'} to EXR (e.g. with oiiotool or imageio)")
+    rad = read_exr(path).astype(np.float32) * np.asarray(scale, np.float32)
+    return EnvMap(rad, str(path))
+
+
+SUN_CONTRAST = 50.0     # a map has a sun if its brightest texel is this many times the mean
+
+
+def decompose(env: EnvMap, k: int) -> list[DirectionalLight]:
+    """K directional lights: the sun (texels brighter than half the brightest, if that is
+    SUN_CONTRAST times the map's mean luminance) as one light, the rest by median cut."""
+    rad = env.radiance.astype(np.float64)
+    H, W = rad.shape[:2]
+    d, omega = texel_geometry(H, W)
+    lum = rad @ LUMINANCE
+    mean = (lum * omega).sum() / (4 * np.pi)
+    lights = []
+    if k > 1 and mean > 0 and lum.max() > SUN_CONTRAST * mean:
+        sun = lum > 0.5 * lum.max()
+        lights.append(_region_light(rad, d, omega, sun, f"{env.source}: sun"))
+        rad = np.where(sun[..., None], 0.0, rad)
+        k -= 1
+    return lights + _median_cut_lights(rad, d, omega, k, env.source)
+
+
+def _region_light(rad, d, omega, mask, source) -> DirectionalLight:
+    """The directional light of the texels in ``mask`` (module docstring)."""
+    w = omega * mask
+    E = (rad * w[..., None]).sum(axis=(0, 1))
+    lum = (rad @ LUMINANCE) * w
+    m = (lum[..., None] * d).sum(axis=(0, 1))
+    if lum.sum() <= 0 or np.linalg.norm(m) == 0:    # no luminance (pure blue) or symmetric
+        m = (w[..., None] * d).sum(axis=(0, 1))
+        a0 = float(np.linalg.norm(m) / w.sum())
+    else:
+        a0 = float(np.linalg.norm(m) / lum.sum())
+    direction = -m / np.linalg.norm(m) if np.linalg.norm(m) > 0 else np.array([0.0, -1.0, 0.0])
+    return DirectionalLight(direction, E, a0=min(a0, 1.0), source=source, from_environment=True)
+
+
+def _median_cut_lights(rad, d, omega, k, source) -> list[DirectionalLight]:
+    H, W = rad.shape[:2]
+    energy = (rad @ LUMINANCE) * omega                     # (H, W) luminous "power"
+    regions = [(0, H, 0, W)]
+    while len(regions) < k:
+        splittable = [r for r in regions if (r[1] - r[0]) * (r[3] - r[2]) > 1]
+        if not splittable:
+            break
+        r = max(splittable, key=lambda r: energy[r[0]:r[1], r[2]:r[3]].sum())
+        i0, i1, j0, j1 = r
+        if energy[i0:i1, j0:j1].sum() <= 0:
+            break
+        theta_mid = (0.5 * (i0 + i1)) * np.pi / H
+        tall = (i1 - i0) * np.pi / H >= (j1 - j0) * 2 * np.pi / W * np.sin(theta_mid)
+        if (tall and i1 - i0 > 1) or j1 - j0 == 1:
+            profile = energy[i0:i1, j0:j1].sum(axis=1)
+            cut = i0 + _median_cut(profile)
+            new = [(i0, cut, j0, j1), (cut, i1, j0, j1)]
+        else:
+            profile = energy[i0:i1, j0:j1].sum(axis=0)
+            cut = j0 + _median_cut(profile)
+            new = [(i0, i1, j0, cut), (i0, i1, cut, j1)]
+        regions.remove(r)
+        regions += new
+    lights = []
+    for i0, i1, j0, j1 in regions:
+        mask = np.zeros((H, W), bool)
+        mask[i0:i1, j0:j1] = True
+        if (rad[mask] > 0).any():
+            lights.append(_region_light(rad, d, omega, mask, f"{source}: region {len(lights)}"))
+    return lights
+
+
+def _median_cut(profile: np.ndarray) -> int:
+    """Index (1 .. n-1) splitting ``profile`` into two parts of about equal sum."""
+    c = np.cumsum(profile)
+    cut = int(np.searchsorted(c, 0.5 * c[-1])) + 1
+    return min(max(cut, 1), len(profile) - 1)
