@@ -4,7 +4,8 @@
 
 - supplement_fig1.png: f_hg and 2 pi F_hg for g = 0, 0.5, 0.9 (supplement Fig. 1);
 - demo.png: the built-in demo scene at 480x270 (what `popvol render -o cloud.png` draws);
-- wdas_sun.png: examples/wdas_sun.toml at 480x270, if ../shared data is beside the checkout.
+- wdas_sun.png: examples/wdas_sun.toml at 480x270, if ../shared data is beside the checkout;
+- demo_sky.png: examples/demo_sky.toml (the demo cloud under a sun and a sky) at 480x270.
 """
 from pathlib import Path
 
@@ -19,7 +20,8 @@ def main():
     OUT.mkdir(parents=True, exist_ok=True)
     plot_supplement_figure(OUT / "supplement_fig1.png")
     print(OUT / "supplement_fig1.png")
-    scenes = {"demo.png": None, "wdas_sun.png": ROOT / "examples" / "wdas_sun.toml"}
+    scenes = {"demo.png": None, "wdas_sun.png": ROOT / "examples" / "wdas_sun.toml",
+              "demo_sky.png": ROOT / "examples" / "demo_sky.toml"}
     for name, path in scenes.items():
         try:
             scene = popvol.load_scene(path, width=480, height=270)

@@ -353,26 +353,26 @@ def solve(scene: Scene, progress=None) -> Solution:
     sols = []
     t_res = t_prop = t_fields = t_diff = 0.0
     for i, light in enumerate(scene.lights):
-      for ch in range(n_ch):
-        cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
-        ds = solve_light(med, light, scene.method, cb, ch)
-        ds.light_index = i
-        t0 = time.perf_counter()
-        d = ds.domain
-        domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch])
-        domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch])
-        if diffusion:
-            dr = ds.result.diffusion
-            domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, ch])
-            for c in range(3):          # world component c of J = sum over domain axes
-                Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
-                domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, dr.h,
-                                med.origin, med.voxel_size, flux[i, ch, c])
-        t_fields += time.perf_counter() - t0
-        t_res += ds.seconds_resample
-        t_prop += ds.result.seconds
-        t_diff += ds.result.seconds_diffusion
-        sols.append(ds)
+        for ch in range(n_ch):
+            cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
+            ds = solve_light(med, light, scene.method, cb, ch)
+            ds.light_index = i
+            t0 = time.perf_counter()
+            d = ds.domain
+            domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch])
+            domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch])
+            if diffusion:
+                dr = ds.result.diffusion
+                domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, ch])
+                for c in range(3):          # world component c of J = sum over domain axes
+                    Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
+                    domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, dr.h,
+                                    med.origin, med.voxel_size, flux[i, ch, c])
+            t_fields += time.perf_counter() - t0
+            t_res += ds.seconds_resample
+            t_prop += ds.result.seconds
+            t_diff += ds.result.seconds_diffusion
+            sols.append(ds)
     dirs = np.array([l.direction for l in scene.lights])
     irr = np.array([l.irradiance for l in scene.lights])
     return Solution(med, sols, phi, phia, dirs, irr,
