@@ -316,7 +316,10 @@ def solve_light(medium: Medium, light: DirectionalLight, method: Method, progres
         raise PopvolError(f"{medium.source}: method.decay = 'paper' (g^(sigma_s s), supplement "
                           f"Eq. 12) needs g >= 0, got g = {medium.g_min:g}; use decay = 'poisson'")
     t0 = time.perf_counter()
-    dom = directional_domain(medium, light.direction, method.resolution)
+    resolution = method.resolution
+    if light.from_environment and method.environment_resolution:
+        resolution = method.environment_resolution
+    dom = directional_domain(medium, light.direction, resolution)
     sigma_t, sigma_s, g = resample_medium(medium, dom, channel)
     Th, Dh = medium_factors(sigma_t, sigma_s, g, dom.h, method.decay)
     diffusion = method.isotropic == "diffusion"

@@ -39,6 +39,8 @@ class Method:
     handover: with "diffusion", the |anisotropy| below which a packet is handed over.
     diffusion_resolution: cells along the longest side of the diffusion grid (blocks of the
         light's domain; 0 = the domain's own cells).
+    environment_resolution: ``resolution`` of the domains of an environment's K lights (they
+        cast soft light; 0 = ``resolution``).
     tolerance: stop when the energy still in flight is below tolerance * injected energy.
     max_iterations: cap on iterations (jacobi) or sweeps (sweep); 0 = automatic.
     step: ray-marching step in medium voxels.
@@ -54,6 +56,7 @@ class Method:
     isotropic: str = "diffusion"
     handover: float = 0.05
     diffusion_resolution: int = 64
+    environment_resolution: int = 64
     tolerance: float = 1e-3
     max_iterations: int = 0
     step: float = 0.5
@@ -69,6 +72,8 @@ class Method:
         _choice(self.isotropic, "method.isotropic", src, ISOTROPIC)
         _float_in(self.handover, "method.handover", src, 0.0, 1.0)
         _int_in(self.diffusion_resolution, "method.diffusion_resolution", src, 0, 4096)
+        if self.environment_resolution != 0:
+            _int_in(self.environment_resolution, "method.environment_resolution", src, 2, 4096)
         _float_in(self.tolerance, "method.tolerance", src, 1e-12, 1.0)
         _int_in(self.max_iterations, "method.max_iterations", src, 0, 10_000_000)
         _float_in(self.step, "method.step", src, 1e-3, 16.0)
