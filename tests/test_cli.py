@@ -140,3 +140,40 @@ def test_scene_from_dict_is_plain_data():
     assert s.medium.shape == (16, 12, 16) and s.method.resolution == 16
     with pytest.raises(PopvolError, match="medium.albedo"):
         scene_from_dict({**d, "medium": {**d["medium"], "albedo": -0.1}})
+
+
+def test_bench_quick_writes_well_formed_figures(tmp_path):
+    """`popvol bench --quick` (a smoke test of the benchmark, not a timing test)."""
+    out = tmp_path / "bench.json"
+    r = popvol("bench", "--quick", "--json", str(out))
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    assert res["machine"]["cpus"] >= 1
+    prop = res["propagation"][0]
+    for key in ("sweep_cell_updates_per_s", "jacobi_cell_updates_per_s", "stream_cells_per_s",
+                "render_camera_samples_per_s"):
+        assert prop[key] > 0, key
+    demo = res["demo"]
+    assert demo["total_s"] > 0 and demo["residual"] <= 1e-3 and demo["method"].startswith("moment")
+    assert set(demo["solve_stages_s"]) >= {"resample", "propagate", "diffusion", "fields"}
+
+
+def test_reference_without_mitsuba_says_how_to_install(monkeypatch):
+    from popvol.reference import import_mitsuba
+    monkeypatch.setitem(sys.modules, "mitsuba", None)        # import mitsuba -> ImportError
+    with pytest.raises(PopvolError, match=r"pip install 'popvol\[reference\]'"):
+        import_mitsuba("scalar_rgb")
+    with pytest.raises(PopvolError, match="--variant"):
+        import_mitsuba("cuda_rgb")
+
+
+def test_compare_against_a_black_reference_reports_flip_as_unavailable(tmp_path):
+    """FLIP takes its exposure range from the reference; a black one made flip-evaluator exit
+    the whole process. popvol renders at the reference's size and reports FLIP n/a."""
+    from popvol.io.images import write_exr
+    ref = tmp_path / "ref.exr"
+    write_exr(ref, np.zeros((10, 12, 3), np.float32))
+    r = popvol("compare", "--reference", str(ref), "--resolution", "16", "--json", str(tmp_path / "c.json"))
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "FLIP n/a" in r.stdout
+    assert json.loads((tmp_path / "c.json").read_text())["flip"] is None

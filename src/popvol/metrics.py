@@ -60,14 +60,21 @@ def ssim(img, ref) -> float:
 
 
 def flip(img, ref) -> float | None:
-    """Mean HDR-FLIP error (NVIDIA's flip-evaluator), or None if it is not installed."""
+    """Mean HDR-FLIP error (NVIDIA's flip-evaluator), or None if it is not installed or the
+    reference has no light to set FLIP's exposure range from (it exits the process then)."""
     try:
         import flip_evaluator
     except ImportError:
         return None
     img, ref = _pair(img, ref)
-    _, mean_error, _ = flip_evaluator.evaluate(np.ascontiguousarray(ref, np.float32),
-                                               np.ascontiguousarray(np.maximum(img, 0), np.float32), "HDR")
+    lum = luminance(ref)
+    if not lum.max() > 0 or not np.median(lum) >= 0:
+        return None
+    try:
+        _, mean_error, _ = flip_evaluator.evaluate(np.ascontiguousarray(ref, np.float32),
+                                                   np.ascontiguousarray(np.maximum(img, 0), np.float32), "HDR")
+    except (SystemExit, RuntimeError, ValueError):
+        return None
     return float(mean_error)
 
 
