@@ -249,6 +249,14 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
                         continue
                     phi[k, i, j] += w * inv_area
                     phia[k, i, j] += wa * inv_area
+                    if wa >= w and thd == 1.0:
+                        # collimated light (a = 1) in empty space: the split sends it all to
+                        # the front (front share 1, conditional mean 1), so skip the table
+                        if k + 1 < n0:
+                            _add(R, Ra, k + 1, i, j, w, wa)
+                        else:
+                            trans += w
+                        continue
                     ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
                     absorbed += w * (1.0 - th)          # ... and the sender's
                     if k + 1 < n0:
