@@ -138,7 +138,7 @@ def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, ha
     phi, phia = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
     bands = K.band_edges(shape[1])
     halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
-    tally_b, tally = np.zeros((len(bands) - 1, 4)), np.zeros(4)
+    tally_b, tally = np.zeros((len(bands) - 1, 5)), np.zeros(4)
     pending = K.sweep(R, Ra, Th, Dh, table, rule == "moment", periodic, forward, flip, w_min, 2.0, phi,
                       phia, bands, halo, tally_b, tally, handover, diffusive, Q)
 

@@ -218,7 +218,8 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
     Southwell relaxation or progressive radiosity).
 
     halo float32 (n_bands, 2, 2, n_d, n_v): [band, 0 = toward row lo - 1 | 1 = toward row hi,
-    0 = energy | 1 = energy * a, k, j]. tally_b float64 (n_bands, 4).
+    0 = energy | 1 = energy * a, k, j]. tally_b float64 (n_bands, 5): the four tallies and the
+    number of cells that sent.
     """
     n0, n1, n2 = R.shape
     for bb in nb.prange(bands.shape[0] - 1):
@@ -229,6 +230,7 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
         trans = 0.0
         side_out = 0.0
         absorbed = 0.0
+        sent = 0
         for step in range(n0):
             k = step if forward else n0 - 1 - step
             for si in range(hi - lo):
@@ -245,6 +247,7 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
                     w *= th
                     R[k, i, j] = 0.0
                     Ra[k, i, j] = 0.0
+                    sent += 1
                     if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
                         continue
                     phi[k, i, j] += w * inv_area
@@ -289,6 +292,7 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
         tally_b[b, TRANSMITTED] += trans
         tally_b[b, SIDE_ESCAPED] += side_out
         tally_b[b, ABSORBED] += absorbed
+        tally_b[b, 4] += sent
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -315,7 +319,8 @@ def deliver_halo(R, Ra, bands, halo):
 def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi, phia,
           bands, halo, tally_b, tally, handover, diffusive, Q):
     """One Gauss-Seidel sweep (see above); adds the sweep's tallies to ``tally`` and returns
-    the energy still pending (arrived, before the receivers' half steps)."""
+    the energy still pending (arrived, before the receivers' half steps). tally_b[:, 4] then
+    holds how many cells sent, per band."""
     tally_b[:] = 0.0
     sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
                 phia, bands, halo, tally_b, handover, diffusive, Q)
