@@ -17,7 +17,6 @@ import itertools
 import time
 from pathlib import Path
 
-import numpy as np
 
 import popvol
 from popvol import metrics

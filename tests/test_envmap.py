@@ -90,7 +90,7 @@ def test_background_is_the_map_in_the_kernel_and_its_twin(tmp_path):
 
 
 def test_background_matches_mitsubas_envmap(tmp_path):
-    mi_mod = pytest.importorskip("mitsuba", reason="Mitsuba 3 is not installed")
+    pytest.importorskip("mitsuba", reason="Mitsuba 3 is not installed")
     from popvol.reference import import_mitsuba, mitsuba_dict
     mi = import_mitsuba("scalar_rgb")
     # a smooth map (bilinear filtering differs little) with a clear left/right/up/down structure

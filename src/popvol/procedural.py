@@ -51,7 +51,7 @@ def cloud_density(resolution: int = 96, seed: int = 7) -> np.ndarray:
 
     fbm = np.zeros_like(shape)
     amp, total = 1.0, 0.0
-    for octave, cells in enumerate((4, 8, 16, 32)):
+    for cells in (4, 8, 16, 32):
         fbm += amp * _value_noise(shape.shape, cells, rng)
         total += amp
         amp *= 0.5

@@ -12,7 +12,6 @@ RGB irradiance when rendering.
 from __future__ import annotations
 
 import functools
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -272,7 +271,7 @@ class Solution:
 
     def stats(self) -> dict:
         out = {"seconds": dict(self.seconds), "domains": []}
-        for i, ds in enumerate(self.domains):
+        for ds in self.domains:
             r = ds.result
             out["domains"].append({
                 "light": ds.light_index, "channel": ds.channel,

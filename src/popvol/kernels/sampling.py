@@ -6,7 +6,6 @@ the edge value in the outer half cell (Mitsuba's gridvolume does the same); outs
 Grids of size 1 along an axis (constants stored as (1, 1, 1)) are constant along it.
 """
 import numba as nb
-import numpy as np
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
