@@ -111,7 +111,8 @@ def test_background_matches_mitsubas_envmap(tmp_path):
 @pytest.mark.parametrize("table,words", [
     ({"type": "envmap", "file": "square.exr"}, ["lat-long", "twice as wide"]),
     ({"type": "envmap", "file": "missing.exr"}, ["not found"]),
-    ({"type": "envmap", "file": "map.hdr"}, ["OpenEXR"]),
+    ({"type": "envmap", "file": "map.hdr"}, ["not a readable Radiance"]),
+    ({"type": "envmap", "file": "map.png"}, ["OpenEXR (.exr) or Radiance (.hdr)"]),
     ({"type": "envmap"}, ["file is required"]),
     ({"type": "sky", "lights": 0}, ["lights", "[1, 256]"]),
     ({"type": "sky", "zenith": [1, 2]}, ["zenith"]),
@@ -121,6 +122,7 @@ def test_background_matches_mitsubas_envmap(tmp_path):
 def test_bad_environment_lights(tmp_path, table, words):
     write_exr(tmp_path / "square.exr", np.ones((8, 8, 3), np.float32))
     (tmp_path / "map.hdr").write_bytes(b"#?RADIANCE\n")
+    (tmp_path / "map.png").write_bytes(b"\x89PNG")
     t = dict(table)
     if "file" in t:
         t["file"] = str(tmp_path / t["file"])
@@ -128,6 +130,22 @@ def test_bad_environment_lights(tmp_path, table, words):
         _scene(t)
     for w in words:
         assert w in str(e.value), str(e.value)
+
+
+def test_radiance_hdr_maps_read_like_exr(tmp_path):
+    """A .hdr written by OpenCV (an independent writer) reads back as the same radiance in RGB
+    order, to the precision of RGBE: one shared exponent per pixel and 8-bit mantissas, so each
+    channel is exact to 1/128 of the pixel's largest channel."""
+    cv2 = pytest.importorskip("cv2", reason="OpenCV is not installed (pip install 'popvol[hdr]')")
+    rng = np.random.default_rng(2)
+    rad = (rng.random((8, 16, 3)) * [1.0, 3.0, 9.0]).astype(np.float32) + 0.05
+    cv2.imwrite(str(tmp_path / "sky.hdr"), rad[..., ::-1])          # OpenCV writes BGR
+    env = envmap.load(tmp_path / "sky.hdr", scale=2.0)
+    step = 2.0 * rad.max(axis=-1, keepdims=True) / 128
+    assert np.all(np.abs(env.radiance - 2.0 * rad) <= step)
+    assert np.all(env.radiance.argmax(-1) == rad.argmax(-1))          # RGB, not BGR
+    sc = _scene({"type": "envmap", "file": str(tmp_path / "sky.hdr"), "lights": 3})
+    assert len(sc.lights) == 3 and sc.environment.radiance.shape == (8, 16, 3)
 
 
 def test_one_environment_per_scene_and_no_second_background():

@@ -74,17 +74,34 @@ def sky(zenith, horizon, ground=(0.0, 0.0, 0.0), height: int = 64, source: str =
 
 
 def load(path, scale=1.0) -> EnvMap:
-    """A lat-long map from an OpenEXR file, times ``scale`` (1 or 3 numbers)."""
+    """A lat-long map from OpenEXR (.exr) or Radiance RGBE (.hdr, through OpenCV, the
+    ``hdr`` extra), times ``scale`` (1 or 3 numbers)."""
     from pathlib import Path
     from .io.images import read_exr
     path = Path(path)
     if not path.is_file():
         raise PopvolError(f"{path}: environment map not found")
-    if path.suffix.lower() != ".exr":
-        raise PopvolError(f"{path}: popvol reads environment maps as OpenEXR (.exr); convert "
-                          f"{path.suffix or 'it'} to EXR (e.g. with oiiotool or imageio)")
-    rad = read_exr(path).astype(np.float32) * np.asarray(scale, np.float32)
-    return EnvMap(rad, str(path))
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        rad = read_exr(path)
+    elif suffix == ".hdr":
+        rad = _read_hdr(path)
+    else:
+        raise PopvolError(f"{path}: popvol reads environment maps as OpenEXR (.exr) or Radiance "
+                          f"(.hdr); convert {path.suffix or 'it'} to one of them")
+    return EnvMap(rad.astype(np.float32) * np.asarray(scale, np.float32), str(path))
+
+
+def _read_hdr(path) -> np.ndarray:
+    try:
+        import cv2
+    except ImportError:
+        raise PopvolError(f"{path}: reading Radiance .hdr needs OpenCV: pip install 'popvol[hdr]' "
+                          "(or convert the map to OpenEXR)") from None
+    img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    if img is None or img.ndim != 3 or img.shape[2] != 3:
+        raise PopvolError(f"{path}: not a readable Radiance .hdr image")
+    return np.ascontiguousarray(img[..., ::-1], np.float32)      # OpenCV gives BGR
 
 
 SUN_CONTRAST = 50.0     # a map has a sun if its brightest texel is this many times the mean
