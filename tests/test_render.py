@@ -182,3 +182,20 @@ def test_jitter_is_deterministic_and_unbiased():
     c = render(scene, jitter=False)
     assert not np.array_equal(a, c)
     assert a.mean() == pytest.approx(c.mean(), rel=0.01)
+
+
+def test_fields_are_only_needed_next_to_the_medium(monkeypatch):
+    """solve() resamples the fields only at voxels within one voxel of non-zero density
+    (propagate.voxels_seen); rendering with fields everywhere gives the same image exactly."""
+    import importlib
+    P = importlib.import_module("popvol.propagate")    # popvol.propagate is also a function name
+    med = blob_medium(peak_tau=1.0)
+    rho = med.density.copy()
+    rho[:, :, :8] = 0.0                                    # an empty third, with a sharp edge
+    scene = blob_scene([0.3, -0.6, 0.74], peak_tau=1.0)
+    scene.medium = Medium(rho, med.voxel_size, med.origin, scale=med.scale, albedo=0.9, g=0.6)
+    seen = P.voxels_seen(rho)
+    assert not seen.all() and seen[:, :, 7:].all() and not seen[:, :, :6].any()
+    img = render(scene, jitter=False)
+    monkeypatch.setattr(P, "voxels_seen", lambda d: np.ones(d.shape, bool))
+    np.testing.assert_array_equal(render(scene, jitter=False), img)

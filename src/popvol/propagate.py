@@ -255,6 +255,7 @@ class Solution:
     n_channels = 1; the renderer multiplies by each light's RGB irradiance): the walk's lobe,
     along each light's direction.
     phid: float32 (n_lights, n_channels, nx, ny, nz), fluence of the diffuse light, and
+    All fields are 0 at voxels the renderer never reads (:func:`voxels_seen`).
     flux: float32 (n_lights, n_channels, 3, nx, ny, nz), its world-space flux vector J
     (isotropic stage "diffusion"; arrays with n_lights = 0 otherwise).
     """
@@ -339,6 +340,22 @@ def solve_light(medium: Medium, light: DirectionalLight, method: Method, progres
     return DomainSolution(light, dom, res, t1 - t0, channel)
 
 
+def voxels_seen(density: np.ndarray) -> np.ndarray:
+    """bool (nx, ny, nz): the voxels the renderer can read fields from. It reads them only where
+    the density is > 0, by trilinear interpolation, so the voxels within one voxel (26
+    neighbours) of a non-empty one; fields elsewhere are left 0."""
+    m = density > 0
+    for axis in range(3):                  # separable 3x3x3 dilation
+        d = m.copy()
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        d[tuple(lo)] |= m[tuple(hi)]
+        d[tuple(hi)] |= m[tuple(lo)]
+        m = d
+    return m
+
+
 def solve(scene: Scene, progress=None) -> Solution:
     """Propagate every light of ``scene`` (and every colour channel of a chromatic medium);
     returns the fields the renderer needs."""
@@ -358,6 +375,7 @@ def solve(scene: Scene, progress=None) -> Solution:
     else:
         phid = np.zeros((0, n_ch, 1, 1, 1), np.float32)
         flux = np.zeros((0, n_ch, 3, 1, 1, 1), np.float32)
+    needed = voxels_seen(med.density)
     sols = []
     t_res = t_prop = t_fields = t_diff = 0.0
     for i, light in enumerate(scene.lights):
@@ -367,15 +385,15 @@ def solve(scene: Scene, progress=None) -> Solution:
             ds.light_index = i
             t0 = time.perf_counter()
             d = ds.domain
-            domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch])
-            domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch])
+            domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch], needed)
+            domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch], needed)
             if diffusion:
                 dr = ds.result.diffusion
-                domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, ch])
+                domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, ch], needed)
                 for c in range(3):          # world component c of J = sum over domain axes
                     Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
                     domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, dr.h,
-                                    med.origin, med.voxel_size, flux[i, ch, c])
+                                    med.origin, med.voxel_size, flux[i, ch, c], needed)
             t_fields += time.perf_counter() - t0
             t_res += ds.seconds_resample
             t_prop += ds.result.seconds

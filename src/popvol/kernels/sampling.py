@@ -81,12 +81,16 @@ def resample(grid, inv_voxel, grid_origin, frame, dom_origin, h, shape, clamp, o
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def domain_to_world(field, frame, dom_origin, h, world_origin, voxel, out):
-    """Sample a domain field (n_d, n_u, n_v) at the centres of world voxels ``out`` (nx, ny, nz)."""
+def domain_to_world(field, frame, dom_origin, h, world_origin, voxel, out, needed):
+    """Sample a domain field (n_d, n_u, n_v) at the centres of world voxels ``out`` (nx, ny, nz)
+    where ``needed`` (bool, same shape) is set; 0 elsewhere."""
     nx, ny, nz = out.shape
     for x in nb.prange(nx):
         for y in range(ny):
             for z in range(nz):
+                if not needed[x, y, z]:
+                    out[x, y, z] = 0.0
+                    continue
                 px = world_origin[0] + x * voxel[0] - dom_origin[0]
                 py = world_origin[1] + y * voxel[1] - dom_origin[1]
                 pz = world_origin[2] + z * voxel[2] - dom_origin[2]
