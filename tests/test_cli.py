@@ -77,14 +77,20 @@ LIGHT = '[[lights]]\ndirection = [0, -1, 0]\n'
     ('this is not toml', ["invalid TOML"]),
 ])
 def test_bad_scene_gives_one_clear_line(tmp_path, snippet, words):
-    p = write_scene(tmp_path, snippet)
+    err = render_error(tmp_path, snippet, words)
+    assert "s.toml" in err or "nope.npz" in err
+
+
+def render_error(tmp_path, scene_text, words):
+    """Render the scene; it must fail with exit 2 and one line naming every word."""
+    p = write_scene(tmp_path, scene_text)
     r = popvol("render", str(p), "-o", str(tmp_path / "x.png"), "--width", "8", "--height", "8")
     assert r.returncode == 2, (r.stdout, r.stderr)
     err = r.stderr.strip()
     assert err.startswith("popvol: error: ") and "\n" not in err and "Traceback" not in err, err
     for w in words:
         assert w in err, err
-    assert "s.toml" in err or "nope.npz" in err
+    return err
 
 
 @pytest.mark.parametrize("optics,words", [
@@ -105,13 +111,7 @@ def test_bad_optics_give_one_clear_line(tmp_path, optics, words):
     text = '[medium]\nfile = "m.npz"\n' + optics.split("[method]")[0] + LIGHT
     if "[method]" in optics:
         text += "[method]" + optics.split("[method]")[1]
-    p = write_scene(tmp_path, text)
-    r = popvol("render", str(p), "-o", str(tmp_path / "x.png"), "--width", "8", "--height", "8")
-    assert r.returncode == 2, (r.stdout, r.stderr)
-    err = r.stderr.strip()
-    assert err.startswith("popvol: error: ") and "\n" not in err and "Traceback" not in err, err
-    for w in words:
-        assert w in err, err
+    render_error(tmp_path, text, words)
 
 
 def test_bad_density_files(tmp_path):

@@ -120,12 +120,6 @@ class Medium:
     def g_min(self) -> float:
         return float(np.min(self.g))
 
-    @property
-    def grey_values(self) -> tuple[float, float | None, float | None]:
-        """(scale, albedo or None if per voxel, g or None if per voxel) of a grey medium."""
-        return (float(self.scale[0]), None if self.albedo_per_voxel else float(self.albedo[0]),
-                None if self.g_per_voxel else float(self.g))
-
     def max_optical_depth(self) -> float:
         """Largest sigma_t times the longest side: a rough scale of how dense the medium is."""
         lo, hi = self.bounds

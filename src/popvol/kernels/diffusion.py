@@ -30,29 +30,37 @@ def _neighbour(k, i, j, nbh):
     return (k + (nbh == 0) - (nbh == 1), i + (nbh == 2) - (nbh == 3), j + (nbh == 4) - (nbh == 5))
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _balance(x, D, sah3, mask, h, k, i, j):
+    """Row (k, i, j) of A: (diagonal, sum over region neighbours q of G_pq x_q)."""
+    n0, n1, n2 = D.shape
+    Dp = D[k, i, j]
+    diag = sah3[k, i, j]
+    acc = 0.0
+    for nbh in range(6):
+        kq, iq, jq = _neighbour(k, i, j, nbh)
+        if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
+            G = g_face(Dp, D[kq, iq, jq], h)
+            diag += G
+            acc += G * x[kq, iq, jq]
+        else:
+            diag += g_boundary(Dp, h)
+    return diag, acc
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def apply(x, D, sah3, mask, h, out):
-    """out = A x (zero outside the region). x, out float64; D, sah3 float32; mask bool."""
+    """out = A x (zero outside the region). x, out float32/64; D, sah3 float32; mask bool."""
     n0, n1, n2 = x.shape
     for kk in nb.prange(n0):
         k = np.int64(kk)
         for i in range(n1):
             for j in range(n2):
-                if not mask[k, i, j]:
+                if mask[k, i, j]:
+                    diag, acc = _balance(x, D, sah3, mask, h, k, i, j)
+                    out[k, i, j] = diag * x[k, i, j] - acc
+                else:
                     out[k, i, j] = 0.0
-                    continue
-                Dp = D[k, i, j]
-                diag = sah3[k, i, j]
-                acc = 0.0
-                for nbh in range(6):
-                    kq, iq, jq = _neighbour(k, i, j, nbh)
-                    if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
-                        G = g_face(Dp, D[kq, iq, jq], h)
-                        diag += G
-                        acc += G * x[kq, iq, jq]
-                    else:
-                        diag += g_boundary(Dp, h)
-                out[k, i, j] = diag * x[k, i, j] - acc
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -63,18 +71,10 @@ def diagonal(D, sah3, mask, h, out):
         k = np.int64(kk)
         for i in range(n1):
             for j in range(n2):
-                if not mask[k, i, j]:
+                if mask[k, i, j]:
+                    out[k, i, j] = _balance(D, D, sah3, mask, h, k, i, j)[0]   # x unused here
+                else:
                     out[k, i, j] = 1.0
-                    continue
-                Dp = D[k, i, j]
-                diag = sah3[k, i, j]
-                for nbh in range(6):
-                    kq, iq, jq = _neighbour(k, i, j, nbh)
-                    if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
-                        diag += g_face(Dp, D[kq, iq, jq], h)
-                    else:
-                        diag += g_boundary(Dp, h)
-                out[k, i, j] = diag
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)

@@ -98,14 +98,16 @@ def _diffuse_lobe(phid, flux, i0, i1, j0, j1, k0, k1, fx, fy, fz, d, gg):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def background_radiance(bg, d, c):
-    """Channel c of the background seen along direction d: a constant (bg of shape (1, 1, 3))
-    or a lat-long map in Mitsuba's envmap convention (popvol/envmap.py), bilinear between
-    texel centres, wrapping in u."""
+def background_radiance(bg, d, out):
+    """The background seen along direction d, into out (3,): a constant (bg of shape
+    (1, 1, 3)) or a lat-long map in Mitsuba's envmap convention (popvol/envmap.py), bilinear
+    between texel centres, wrapping in u."""
     H = bg.shape[0]
     W = bg.shape[1]
     if H == 1 and W == 1:
-        return bg[0, 0, c]
+        for c in range(3):
+            out[c] = bg[0, 0, c]
+        return
     u = math.atan2(d[0], -d[2]) * (0.5 / math.pi)
     u -= math.floor(u)
     v = math.acos(min(1.0, max(-1.0, d[1]))) / math.pi
@@ -118,9 +120,10 @@ def background_radiance(bg, d, c):
     i1 = min(i0 + 1, H - 1)
     ja = j0 % W
     jb = (j0 + 1) % W
-    top = bg[i0, ja, c] * (1.0 - fx) + bg[i0, jb, c] * fx
-    bot = bg[i1, ja, c] * (1.0 - fx) + bg[i1, jb, c] * fx
-    return top * (1.0 - fy) + bot * fy
+    for c in range(3):
+        top = bg[i0, ja, c] * (1.0 - fx) + bg[i0, jb, c] * fx
+        bot = bg[i1, ja, c] * (1.0 - fx) + bg[i1, jb, c] * fx
+        out[c] = top * (1.0 - fy) + bot * fy
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -153,6 +156,7 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
         rgb = np.empty(3)
         ls = np.empty(3)
         Tv = np.empty(3)
+        bgv = np.empty(3)
         for px in range(width):
             acc0 = 0.0
             acc1 = 0.0
@@ -235,9 +239,10 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
                         for c in range(3):
                             Tv[c] = 0.0
                         break
-                acc0 += rgb[0] + Tv[0] * background_radiance(background, d, 0)
-                acc1 += rgb[1] + Tv[1] * background_radiance(background, d, 1)
-                acc2 += rgb[2] + Tv[2] * background_radiance(background, d, 2)
+                background_radiance(background, d, bgv)
+                acc0 += rgb[0] + Tv[0] * bgv[0]
+                acc1 += rgb[1] + Tv[1] * bgv[1]
+                acc2 += rgb[2] + Tv[2] * bgv[2]
             out[py, px, 0] = acc0 / spp
             out[py, px, 1] = acc1 / spp
             out[py, px, 2] = acc2 / spp
