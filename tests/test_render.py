@@ -199,3 +199,28 @@ def test_fields_are_only_needed_next_to_the_medium(monkeypatch):
     img = render(scene, jitter=False)
     monkeypatch.setattr(P, "voxels_seen", lambda d: np.ones(d.shape, bool))
     np.testing.assert_array_equal(render(scene, jitter=False), img)
+
+
+def test_solve_reuses_only_the_lights_whose_domains_are_unchanged():
+    """solve(scene, reuse=old) copies the fields of lights whose direction, medium and method
+    are unchanged (per unit irradiance, so irradiance may change) and re-propagates the others;
+    the result equals a solve from scratch."""
+    import dataclasses
+    scene = blob_scene([0.3, -0.6, 0.74], peak_tau=1.0)
+    scene.lights.append(DirectionalLight([-0.5, -0.5, 0.2], [0.2, 0.3, 0.4]))
+    first = solve(scene)
+    # brighter first light, a new direction for the second, a different camera and step
+    scene.lights[0] = DirectionalLight(scene.lights[0].direction, [3.0, 2.0, 1.0])
+    scene.lights[1] = DirectionalLight([0.1, -0.9, -0.3], [0.2, 0.3, 0.4])
+    scene.method = dataclasses.replace(scene.method, step=0.5, spp=2)
+    again = solve(scene, reuse=first)
+    assert [d.reused for d in again.domains] == [True, False]
+    fresh = solve(scene)
+    for name in ("phi", "phia", "phid", "flux"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(fresh, name))
+    np.testing.assert_array_equal(render(scene, again, jitter=False), render(scene, fresh, jitter=False))
+    # a different medium (albedo) or propagation method invalidates everything
+    scene.medium = dataclasses.replace(scene.medium, albedo=0.8)
+    assert not any(d.reused for d in solve(scene, reuse=fresh).domains)
+    other = dataclasses.replace(scene, method=dataclasses.replace(scene.method, resolution=16))
+    assert not any(d.reused for d in solve(other, reuse=fresh).domains)

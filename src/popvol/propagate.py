@@ -11,6 +11,7 @@ RGB irradiance when rendering.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from dataclasses import dataclass, field
@@ -245,6 +246,7 @@ class DomainSolution:
     seconds_resample: float
     channel: int = 0           # colour channel of a chromatic medium (0 for grey media)
     light_index: int = 0       # which of the scene's lights
+    reused: bool = False       # copied from an earlier solution (solve's ``reuse``)
 
 
 @dataclass
@@ -269,13 +271,14 @@ class Solution:
     seconds: dict = field(default_factory=dict)
     phid: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 1, 1, 1), np.float32))
     flux: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 3, 1, 1, 1), np.float32))
+    key: tuple = ()            # medium_key and method_key it was solved for (see solve's reuse)
 
     def stats(self) -> dict:
         out = {"seconds": dict(self.seconds), "domains": []}
         for ds in self.domains:
             r = ds.result
             out["domains"].append({
-                "light": ds.light_index, "channel": ds.channel,
+                "light": ds.light_index, "channel": ds.channel, "reused": ds.reused,
                 "type": "directional", "shape": list(ds.domain.shape),
                 "cell_size": ds.domain.h, "iterations": r.iterations, "residual": r.residual,
                 "converged": r.converged, "cell_updates": r.cell_updates,
@@ -356,9 +359,39 @@ def voxels_seen(density: np.ndarray) -> np.ndarray:
     return m
 
 
-def solve(scene: Scene, progress=None) -> Solution:
+def medium_key(medium: Medium) -> tuple:
+    """What propagation depends on in a medium: grids by identity (a Medium made from another
+    with ``dataclasses.replace`` shares them), numbers by value."""
+    def value(v):
+        return ("grid", id(v)) if np.ndim(v) == 3 else tuple(np.atleast_1d(v).tolist())
+    return (id(medium.density), medium.density.shape, tuple(medium.origin), tuple(medium.voxel_size),
+            value(medium.scale), value(medium.albedo), value(medium.g))
+
+
+#: Method fields that only rendering reads: changing them keeps a solution valid.
+RENDER_ONLY = ("step", "spp", "exposure", "seed")
+
+
+def method_key(method: Method) -> tuple:
+    return tuple((k, v) for k, v in vars(method).items() if k not in RENDER_ONLY)
+
+
+def light_key(light) -> tuple:
+    """What a light's per-unit-irradiance domain solution depends on (not its irradiance)."""
+    # rounded: normalising an already unit direction again may change its last bit
+    return (type(light).__name__, tuple(np.round(light.direction, 12)), light.a0,
+            light.from_environment)
+
+
+def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solution:
     """Propagate every light of ``scene`` (and every colour channel of a chromatic medium);
-    returns the fields the renderer needs."""
+    returns the fields the renderer needs.
+
+    ``reuse``: an earlier solution. Lights that it solved for the same medium and method
+    (irradiance may differ: fields are per unit irradiance) are copied from it instead of
+    propagated again, so moving one light of several re-propagates that light only, and
+    changing a light's irradiance or the camera re-propagates nothing.
+    """
     med = scene.medium
     n = len(scene.lights)
     n_ch = med.n_channels
@@ -375,11 +408,24 @@ def solve(scene: Scene, progress=None) -> Solution:
     else:
         phid = np.zeros((0, n_ch, 1, 1, 1), np.float32)
         flux = np.zeros((0, n_ch, 3, 1, 1, 1), np.float32)
+    key = (medium_key(med), method_key(scene.method))
+    old = {}
+    if reuse is not None and reuse.key == key:
+        for ds in reuse.domains:
+            old[light_key(ds.light), ds.channel] = ds
     needed = voxels_seen(med.density)
     sols = []
     t_res = t_prop = t_fields = t_diff = 0.0
     for i, light in enumerate(scene.lights):
         for ch in range(n_ch):
+            prev = old.get((light_key(light), ch))
+            if prev is not None:
+                j = prev.light_index
+                phi[i, ch], phia[i, ch] = reuse.phi[j, ch], reuse.phia[j, ch]
+                if diffusion:
+                    phid[i, ch], flux[i, ch] = reuse.phid[j, ch], reuse.flux[j, ch]
+                sols.append(dataclasses.replace(prev, light=light, light_index=i, reused=True))
+                continue
             cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
             ds = solve_light(med, light, scene.method, cb, ch)
             ds.light_index = i
@@ -403,4 +449,4 @@ def solve(scene: Scene, progress=None) -> Solution:
     irr = np.array([l.irradiance for l in scene.lights])
     return Solution(med, sols, phi, phia, dirs, irr,
                     {"resample": t_res, "propagate": t_prop, "diffusion": t_diff, "fields": t_fields},
-                    phid, flux)
+                    phid, flux, key)
