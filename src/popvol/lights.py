@@ -1,5 +1,8 @@
 """Light sources.
 
+A point light radiates intensity I [W/sr per RGB channel] equally in all directions from its
+position; in vacuum its fluence at distance r is I / r^2.
+
 A directional light (sun) is described by the direction its light *travels* (Mitsuba's
 convention: a sun high in the sky has direction close to (0, -1, 0)) and its irradiance E
 [W/m^2 per RGB channel] on a plane perpendicular to that direction.
@@ -45,3 +48,41 @@ class DirectionalLight:
         if not (np.isfinite(self.a0) and 0.0 <= self.a0 <= 1.0):
             raise PopvolError(f"{self.source}: light a0 = {self.a0!r} is outside [0, 1]")
         self.a0 = float(self.a0)
+
+    @property
+    def power(self) -> np.ndarray:
+        """What the renderer scales the per-unit fields by: the irradiance."""
+        return self.irradiance
+
+
+@dataclass
+class PointLight:
+    """An isotropic point light.
+
+    Attributes:
+        position: float64 (3,), world position.
+        intensity: float64 (3,), RGB radiant intensity [W/sr], >= 0.
+    """
+
+    position: np.ndarray
+    intensity: np.ndarray
+    source: str = "<light>"
+    a0: float = 1.0                 # light leaves the point radially: a collimated radial lobe
+    from_environment: bool = False
+
+    def __post_init__(self):
+        p = np.asarray(self.position, dtype=np.float64)
+        if p.shape != (3,) or not np.all(np.isfinite(p)):
+            raise PopvolError(f"{self.source}: light position must be 3 finite numbers, got {self.position!r}")
+        self.position = p
+        e = np.asarray(self.intensity, dtype=np.float64)
+        if e.ndim == 0:
+            e = np.full(3, float(e))
+        if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
+            raise PopvolError(f"{self.source}: light intensity must be 1 or 3 finite numbers >= 0, got {self.intensity!r}")
+        self.intensity = e
+
+    @property
+    def power(self) -> np.ndarray:
+        """What the renderer scales the per-unit fields by: the intensity."""
+        return self.intensity

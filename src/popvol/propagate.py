@@ -20,10 +20,10 @@ import numpy as np
 
 from . import hg
 from .diffusion import solve_diffusion
-from .domains import DirectionalDomain, check_memory, directional_domain
+from .domains import DirectionalDomain, SphericalDomain, check_memory, directional_domain
 from .kernels import propagation as K
 from .kernels.sampling import domain_to_world, resample
-from .lights import DirectionalLight
+from .lights import DirectionalLight, PointLight
 from .medium import Medium
 from .scene import Method, Scene
 
@@ -119,6 +119,31 @@ def default_max_iterations(shape, solver: str) -> int:
     return 400
 
 
+def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, n_cells: int,
+                          injected: float, progress=None) -> tuple[float, int]:
+    """Run thresholded Gauss-Seidel sweeps until the power in flight is <= target or ``cap``
+    sweeps have run; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
+    number of cells that sent). Returns (in flight, sweeps).
+
+    Southwell-style: only cells holding more than twice the mean pending energy (over all
+    cells) send; the others wait for more to arrive. On the WDAS cloud this skips most of the
+    faint diffuse light in empty space: 30-40 % faster than sending every cell, images equal
+    to 0.5 %. Near the tolerance the fraction drops to 1/2 (the fullest cell always qualifies:
+    max >= mean), and should no cell qualify, the next sweep sends them all.
+    """
+    fraction = SOUTHWELL_FRACTION
+    it = 0
+    while in_flight > target and it < cap:
+        if in_flight < 10.0 * target:
+            fraction = min(fraction, 0.5)
+        in_flight, sent = one_sweep(it, fraction * in_flight / n_cells)
+        fraction = fraction if sent > 0 else 0.0
+        it += 1
+        if progress is not None:
+            progress(it, in_flight / injected)
+    return in_flight, it
+
+
 def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
               rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
               max_iterations: int = 0, periodic: bool = False, progress=None,
@@ -194,25 +219,13 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
         bands = K.band_edges(shape[1])
         halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
         tally_b = np.zeros((len(bands) - 1, 5))
-        fraction = SOUTHWELL_FRACTION
-        while in_flight > target and it < cap:
-            # Southwell-style: only cells holding more than twice the mean pending energy (over
-            # all cells) send; the others wait for more to arrive. On the WDAS cloud this skips
-            # most of the faint diffuse light in empty space: 30-40 % faster than sending every
-            # cell, images equal to 0.5 %. Near the tolerance the fraction drops to 1/2 (the
-            # fullest cell always qualifies: max >= mean), and should no cell qualify, the next
-            # sweep sends them all.
-            if in_flight < 10.0 * target:
-                fraction = min(fraction, 0.5)
-            w_min = fraction * in_flight / Th.size
+        def one_sweep(it, w_min):
             # alternate +d / -d every sweep and the lateral order every second sweep
-            in_flight = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
-                                w_min, inv_area, phi, phia, bands, halo, tally_b, tally,
-                                eps, diffusive, Q)
-            fraction = fraction if tally_b[:, 4].sum() > 0 else 0.0
-            it += 1
-            if progress is not None:
-                progress(it, in_flight / budget.injected)
+            left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
+                           w_min, inv_area, phi, phia, bands, halo, tally_b, tally, eps, diffusive, Q)
+            return left, tally_b[:, 4].sum()
+        in_flight, it = sweep_until_converged(one_sweep, in_flight, target, cap, Th.size,
+                                              budget.injected, progress)
     seconds = time.perf_counter() - t0
     budget.reflected, budget.transmitted, budget.side = (float(x) for x in tally[:3])
     budget.absorbed += float(tally[K.ABSORBED])
@@ -240,13 +253,14 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
 
 @dataclass
 class DomainSolution:
-    light: DirectionalLight
-    domain: DirectionalDomain
+    light: DirectionalLight | PointLight
+    domain: DirectionalDomain | SphericalDomain
     result: PropagationResult
     seconds_resample: float
     channel: int = 0           # colour channel of a chromatic medium (0 for grey media)
     light_index: int = 0       # which of the scene's lights
     reused: bool = False       # copied from an earlier solution (solve's ``reuse``)
+    diffusion_domain: DirectionalDomain | None = None   # grid of the diffusion stage if not ``domain``
 
 
 @dataclass
@@ -255,7 +269,8 @@ class Solution:
 
     phi, phia: float32 (n_lights, n_channels, nx, ny, nz), per unit irradiance (grey media:
     n_channels = 1; the renderer multiplies by each light's RGB irradiance): the walk's lobe,
-    along each light's direction.
+    along each light's direction. For a point light: per unit intensity, times r^2 (r the
+    distance to the light; the renderer divides by it), the lobe along r (see spherical.py).
     phid: float32 (n_lights, n_channels, nx, ny, nz), fluence of the diffuse light, and
     All fields are 0 at voxels the renderer never reads (:func:`voxels_seen`).
     flux: float32 (n_lights, n_channels, 3, nx, ny, nz), its world-space flux vector J
@@ -266,12 +281,14 @@ class Solution:
     domains: list[DomainSolution]
     phi: np.ndarray
     phia: np.ndarray
-    directions: np.ndarray     # float64 (n_lights, 3), direction each light travels
-    irradiance: np.ndarray     # float64 (n_lights, 3)
+    directions: np.ndarray     # float64 (n_lights, 3), direction each light travels (suns)
+    irradiance: np.ndarray     # float64 (n_lights, 3): irradiance (suns), intensity (points)
     seconds: dict = field(default_factory=dict)
     phid: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 1, 1, 1), np.float32))
     flux: np.ndarray = field(default_factory=lambda: np.zeros((0, 1, 3, 1, 1, 1), np.float32))
     key: tuple = ()            # medium_key and method_key it was solved for (see solve's reuse)
+    positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (n_lights, 3)
+    is_point: np.ndarray = field(default_factory=lambda: np.zeros(0, np.bool_))  # (n_lights,)
 
     def stats(self) -> dict:
         out = {"seconds": dict(self.seconds), "domains": []}
@@ -279,8 +296,9 @@ class Solution:
             r = ds.result
             out["domains"].append({
                 "light": ds.light_index, "channel": ds.channel, "reused": ds.reused,
-                "type": "directional", "shape": list(ds.domain.shape),
-                "cell_size": ds.domain.h, "iterations": r.iterations, "residual": r.residual,
+                "type": "point" if isinstance(ds.light, PointLight) else "directional",
+                "shape": list(ds.domain.shape),
+                "cell_size": ds.domain.dr if isinstance(ds.domain, SphericalDomain) else ds.domain.h, "iterations": r.iterations, "residual": r.residual,
                 "converged": r.converged, "cell_updates": r.cell_updates,
                 "seconds_resample": ds.seconds_resample, "seconds_propagate": r.seconds,
                 "seconds_diffusion": r.seconds_diffusion,
@@ -378,9 +396,10 @@ def method_key(method: Method) -> tuple:
 
 def light_key(light) -> tuple:
     """What a light's per-unit-irradiance domain solution depends on (not its irradiance)."""
+    if isinstance(light, PointLight):
+        return ("point", tuple(light.position))
     # rounded: normalising an already unit direction again may change its last bit
-    return (type(light).__name__, tuple(np.round(light.direction, 12)), light.a0,
-            light.from_environment)
+    return ("directional", tuple(np.round(light.direction, 12)), light.a0, light.from_environment)
 
 
 def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solution:
@@ -392,6 +411,7 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
     propagated again, so moving one light of several re-propagates that light only, and
     changing a light's irradiance or the camera re-propagates nothing.
     """
+    from .spherical import fields_to_world, solve_point_light
     med = scene.medium
     n = len(scene.lights)
     n_ch = med.n_channels
@@ -427,14 +447,19 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
                 sols.append(dataclasses.replace(prev, light=light, light_index=i, reused=True))
                 continue
             cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
-            ds = solve_light(med, light, scene.method, cb, ch)
+            point = isinstance(light, PointLight)
+            ds = (solve_point_light if point else solve_light)(med, light, scene.method, cb, ch)
             ds.light_index = i
             t0 = time.perf_counter()
             d = ds.domain
-            domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch], needed)
-            domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch], needed)
+            if point:
+                fields_to_world(ds, med, phi[i, ch], phia[i, ch], needed)
+            else:
+                domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch], needed)
+                domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch], needed)
             if diffusion:
                 dr = ds.result.diffusion
+                d = ds.diffusion_domain or d
                 domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, ch], needed)
                 for c in range(3):          # world component c of J = sum over domain axes
                     Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
@@ -445,8 +470,10 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
             t_prop += ds.result.seconds
             t_diff += ds.result.seconds_diffusion
             sols.append(ds)
-    dirs = np.array([l.direction for l in scene.lights])
-    irr = np.array([l.irradiance for l in scene.lights])
-    return Solution(med, sols, phi, phia, dirs, irr,
+    point = np.array([isinstance(l, PointLight) for l in scene.lights], np.bool_)
+    dirs = np.array([[0.0, 0.0, 0.0] if p else l.direction for l, p in zip(scene.lights, point)]).reshape(-1, 3)
+    pos = np.array([l.position if p else [0.0, 0.0, 0.0] for l, p in zip(scene.lights, point)]).reshape(-1, 3)
+    power = np.array([l.power for l in scene.lights]).reshape(-1, 3)
+    return Solution(med, sols, phi, phia, dirs, power,
                     {"resample": t_res, "propagate": t_prop, "diffusion": t_diff, "fields": t_fields},
-                    phid, flux, key)
+                    phid, flux, key, pos, point)

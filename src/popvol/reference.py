@@ -12,7 +12,8 @@ empty, an absorbing-only and an optically thin medium):
   interior with sigma_t = scale * density, a constant albedo and an ``hg`` phase with the same g
   (g > 0 forward in both).
 - Lights: a popvol directional light's ``direction`` is the direction the light travels, as
-  Mitsuba's ``directional`` emitter; ``irradiance`` is on a plane facing the light in both.
+  Mitsuba's ``directional`` emitter; ``irradiance`` is on a plane facing the light in both. A
+  point light is Mitsuba's ``point`` emitter, ``intensity`` in W/sr in both.
 - Background: a ``constant`` emitter with the background radiance. In Mitsuba it also lights the
   medium, as a sky would; popvol's renderer does not (until environment lights exist), so scenes
   meant to measure popvol's accuracy use a black background, or a background that is a light.
@@ -40,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import PopvolError
+from .lights import PointLight
 from .scene import Scene
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
@@ -128,6 +130,10 @@ def mitsuba_dict(scene: Scene, mi, max_depth: int = 1024, spp: int = 16) -> dict
     for i, light in enumerate(scene.lights):
         if light.from_environment:
             continue
+        if isinstance(light, PointLight):     # intensity [W/sr] in both
+            d[f"light_{i}"] = {"type": "point", "position": light.position.tolist(),
+                               "intensity": {"type": "rgb", "value": light.intensity.tolist()}}
+            continue
         d[f"light_{i}"] = {"type": "directional", "direction": light.direction.tolist(),
                            "irradiance": {"type": "rgb", "value": light.irradiance.tolist()}}
     return d
@@ -142,7 +148,10 @@ def scene_digest(scene: Scene) -> str:
               [cam.fov, cam.width, cam.height], scene.background):
         h.update(np.asarray(v, np.float64).tobytes())
     for l in scene.lights:
-        h.update(np.concatenate([l.direction, l.irradiance]).astype(np.float64).tobytes())
+        if isinstance(l, PointLight):
+            h.update(b"point" + np.concatenate([l.position, l.intensity]).astype(np.float64).tobytes())
+        else:
+            h.update(np.concatenate([l.direction, l.irradiance]).astype(np.float64).tobytes())
     if scene.environment is not None:
         h.update(np.ascontiguousarray(scene.environment.radiance).tobytes())
     return h.hexdigest()[:16]

@@ -32,6 +32,7 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
                   med.voxel_size, lo, hi, solution.phi, solution.phia, solution.phid, solution.flux,
                   np.ascontiguousarray(solution.directions, np.float64),
                   np.ascontiguousarray(solution.irradiance, np.float64),
+                  np.ascontiguousarray(solution.positions, np.float64), solution.is_point,
                   background_map(scene), cam.origin, cam.basis(),
                   float(np.tan(np.radians(cam.fov) / 2)), cam.width, cam.height, step, m.spp,
                   m.seed, jitter, out)

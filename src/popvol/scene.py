@@ -14,7 +14,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import PopvolError
-from .lights import DirectionalLight
+from .lights import DirectionalLight, PointLight
 from .medium import Medium
 
 SOLVERS = ("sweep", "jacobi")
@@ -86,7 +86,7 @@ class Method:
 @dataclass
 class Scene:
     medium: Medium
-    lights: list[DirectionalLight]
+    lights: list[DirectionalLight | PointLight]
     camera: Camera
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     method: Method = field(default_factory=Method)
@@ -102,6 +102,7 @@ _TOP_KEYS = {"medium", "lights", "light", "background", "camera", "method"}
 _MEDIUM_KEYS = {"type", "file", "grid", "resolution", "seed", "extent", "scale", "albedo", "g",
                 "voxel_size", "origin"}
 _LIGHT_KEYS = {"directional": {"type", "direction", "irradiance", "a0"},
+               "point": {"type", "position", "intensity"},
                "envmap": {"type", "file", "scale", "lights"},
                "sky": {"type", "zenith", "horizon", "ground", "lights"}}
 _CAMERA_KEYS = {"origin", "target", "up", "fov", "width", "height"}
@@ -236,7 +237,7 @@ def _optics(med, given: dict) -> dict:
 
 
 def _light(l, name: str, src: str, base: Path = Path(".")):
-    """A DirectionalLight, or for an environment [EnvMap, its K directional lights]."""
+    """A DirectionalLight or PointLight, or for an environment [EnvMap, its K directional lights]."""
     if not isinstance(l, dict):
         raise PopvolError(f"{src}: {name} must be a table")
     kind = l.get("type", "directional")
@@ -257,6 +258,11 @@ def _light(l, name: str, src: str, base: Path = Path(".")):
                              _rgb(l.get("horizon", [0.6, 0.7, 0.9]), f"{name}.horizon", src),
                              _rgb(l.get("ground", 0.0), f"{name}.ground", src), source=f"{src}: {name}")
         return [env, envmap.decompose(env, k)]
+    if kind == "point":
+        if "position" not in l:
+            raise PopvolError(f"{src}: {name}.position is required (the light's world position)")
+        return PointLight(l["position"], _rgb(l.get("intensity", 1.0), f"{name}.intensity", src),
+                          source=f"{src}: {name}")
     if "direction" not in l:
         raise PopvolError(f"{src}: {name}.direction is required (the direction the light travels)")
     return DirectionalLight(l["direction"], _rgb(l.get("irradiance", 1.0), f"{name}.irradiance", src),

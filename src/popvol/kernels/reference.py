@@ -201,7 +201,12 @@ def render_pixel(scene, solution, px, py):
                 p = float(trilinear(solution.phi[l, c], q))
                 if p > 0:
                     A = float(trilinear(solution.phia[l, c], q)) / p
-                    mu = -np.dot(solution.directions[l], d)
+                    w = solution.directions[l]
+                    if solution.is_point[l]:          # fields hold r^2 phi; the lobe is radial
+                        w = x - solution.positions[l]
+                        p /= np.dot(w, w)
+                        w = w / np.linalg.norm(w)
+                    mu = -np.dot(w, d)
                     Ls += p * hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)) * E
                 if solution.phid.shape[0]:             # the diffuse lobe, about its flux J
                     pd = float(trilinear(solution.phid[l, c], q))
@@ -235,3 +240,75 @@ def background_twin(scene, d):
     fx, fy = x - j0, y - i0
     rows = [m[i, j0 % W] * (1 - fx) + m[i, (j0 + 1) % W] * fx for i in (i0, min(i0 + 1, H - 1))]
     return rows[0] * (1 - fy) + rows[1] * fy
+
+
+def sweep_spherical(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, rule, full, forward, flip, w_min, inv_area,
+                    phi, phia, tally, band_rows=16, handover=-1.0, diffusive=None, Q=None):
+    """One sweep of a point light's spherical domain (twin of kernels.spherical.sweep_spherical_
+    bands + deliver), cell by cell, bands of theta rows one after the other. A transfer along
+    axis X multiplies by T_X[src] T_X[dst] and D_X[src] D_X[dst]; a full sphere wraps phi,
+    crosses the poles to phi + pi and sends the innermost back part to the antipodal cell with
+    its anisotropy reversed. Parts crossing a band edge and through the light wait until the
+    end. Returns the power still pending."""
+    n0, n1, n2 = R.shape
+    edges = list(range(0, n1, band_rows)) + [n1]
+    if len(edges) > 2 and edges[-1] - edges[-2] < 2:
+        edges.pop(-2)
+    later = []
+    for b in range(len(edges) - 1):
+        rows = range(edges[b], edges[b + 1])
+        for k in (range(n0) if forward else range(n0 - 1, -1, -1)):
+            for i in (reversed(rows) if flip else rows):
+                for j in (range(n2 - 1, -1, -1) if flip else range(n2)):
+                    w, wa = float(R[k, i, j]), float(Ra[k, i, j])
+                    if w <= w_min:
+                        continue
+                    R[k, i, j] = Ra[k, i, j] = 0.0
+                    if handover > 0 and diffusive[k, i, j] and abs(wa) < handover * w:
+                        Q[0, k, i, j] += w
+                        Q[1, k, i, j] += wa
+                        continue
+                    phi[k, i, j] += w * inv_area[k, i]
+                    phia[k, i, j] += wa * inv_area[k, i]
+                    (ef, mf), (es, ms), (eb, mb) = split_exact(w, wa, rule)
+                    ef, mf, es, ms, eb, mb = (float(v) for v in (ef, mf, es, ms, eb, mb))
+                    # (destination or None, part, its a, T, D, tally slot if it leaves, later?)
+                    moves = []
+                    for kn, e, m, slot in ((k + 1, ef, mf, TRANSMITTED), (k - 1, eb, mb, REFLECTED)):
+                        if 0 <= kn < n0:
+                            moves.append(((kn, i, j), e, m, Tr, Dr, None, False))
+                        elif kn < 0 and full:
+                            dst = (0, n1 - 1 - i, (j + n2 // 2) % n2)
+                            moves.append((dst, e, -m, Tr, Dr, None, True))
+                        else:
+                            moves.append((None, e, m, Tr, Dr, slot, False))
+                    for jj in (j - 1, j + 1):
+                        if 0 <= jj < n2 or full:
+                            moves.append(((k, i, jj % n2), es, ms, Tp, Dp, None, False))
+                        else:
+                            moves.append((None, es, ms, Tp, Dp, SIDE_ESCAPED, False))
+                    for ii in (i - 1, i + 1):
+                        if 0 <= ii < n1:
+                            moves.append(((k, ii, j), es, ms, Tt, Dt, None, not edges[b] <= ii < edges[b + 1]))
+                        elif full:              # across the pole
+                            moves.append(((k, i, (j + n2 // 2) % n2), es, ms, Tt, Dt, None, False))
+                        else:
+                            moves.append((None, es, ms, Tt, Dt, SIDE_ESCAPED, False))
+                    for dst, e, m, T, D, slot, wait in moves:
+                        t_src, d_src = float(T[k, i, j]), float(D[k, i, j])
+                        if dst is None:
+                            tally[slot] += e * t_src
+                            tally[ABSORBED] += e * (1 - t_src)
+                            continue
+                        t = t_src * float(T[dst])
+                        part = (e * t, e * m * t * d_src * float(D[dst]))
+                        tally[ABSORBED] += e * (1 - t)
+                        if wait:
+                            later.append(dst + part)
+                        else:
+                            R[dst] += part[0]
+                            Ra[dst] += part[1]
+    for k, i, j, e, ea in later:
+        R[k, i, j] += e
+        Ra[k, i, j] += ea
+    return float(R.sum(dtype=np.float64))

@@ -4,7 +4,8 @@ For a camera ray x(t) = c + t v:
   L = int T_v(t) L_s(x(t), -v) dt + T_v(t_max) L_background,   T_v(t) = exp(-int_0^t sigma_t)
   L_s(x, w_o) = sigma_s(x) sum_l E_l phi_l(x) f_hg(d_l . w_o; g(x) A_l(x))
 where phi_l is the light's fluence per unit irradiance and A_l = phia_l / phi_l its lobe's
-anisotropy; f_hg(.; g A) is the exact convolution of the lobe HG_A with the phase HG_g
+anisotropy (a point light: E_l is its intensity, d_l = (x - p_l) / r the direction from the
+light and phi_l = (r^2 phi_l) / r^2 with r^2 phi_l the stored field, see popvol/spherical.py); f_hg(.; g A) is the exact convolution of the lobe HG_A with the phase HG_g
 (supplement Eq. 3). Each march segment of length ds uses sigma_t at a jittered point inside
 it and integrates T_v exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
 """
@@ -128,7 +129,7 @@ def background_radiance(bg, d, out):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi,
-                  phi, phia, phid, flux, light_dir, irradiance, background,
+                  phi, phia, phid, flux, light_dir, irradiance, light_pos, is_point, background,
                   cam_origin, cam_basis, tan_half, width, height,
                   step, spp, seed, jitter, out):
     """Render into ``out`` float32 (height, width, 3), linear radiance.
@@ -139,7 +140,8 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
     phi, phia: float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit irradiance;
     phid, flux: the diffuse lobe's fluence (n_lights, n_channels, ...) and world flux vector
     (n_lights, n_channels, 3, ...), or arrays with n_lights = 0 when there is no diffusion stage;
-    light_dir, irradiance: float64 (n_lights, 3); background: float32 (1, 1, 3) (a constant)
+    light_dir, irradiance: float64 (n_lights, 3); light_pos float64 (n_lights, 3) and is_point
+    bool (n_lights,): point lights (their phi, phia hold r^2 phi); background: float32 (1, 1, 3) (a constant)
     or (H, 2H, 3) (a lat-long environment map, see background_radiance);
     cam_basis rows forward, right, up; step in world units; jitter: random sub-pixel and
     along-ray offsets (False: pixel centres and segment midpoints, for tests).
@@ -207,12 +209,22 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
                     ls[1] = 0.0
                     ls[2] = 0.0
                     for l in range(n_lights):
-                        mu = -(light_dir[l, 0] * d[0] + light_dir[l, 1] * d[1] + light_dir[l, 2] * d[2])
+                        inv_r2 = 1.0
+                        if is_point[l]:
+                            rx = cam_origin[0] + ts * d[0] - light_pos[l, 0]
+                            ry = cam_origin[1] + ts * d[1] - light_pos[l, 1]
+                            rz = cam_origin[2] + ts * d[2] - light_pos[l, 2]
+                            r2 = max(rx * rx + ry * ry + rz * rz, 1e-30)
+                            inv_r2 = 1.0 / r2
+                            mu = -(rx * d[0] + ry * d[1] + rz * d[2]) * math.sqrt(inv_r2)
+                        else:
+                            mu = -(light_dir[l, 0] * d[0] + light_dir[l, 1] * d[1] + light_dir[l, 2] * d[2])
                         for c in range(n_ch):
                             p = _interp(phi[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
                             val = 0.0
                             if p > 0.0:
                                 A = _interp(phia[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz) / p
+                                p *= inv_r2
                                 gA = gg * A
                                 if gA > 0.9999:
                                     gA = 0.9999

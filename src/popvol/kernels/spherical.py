@@ -1,0 +1,289 @@
+"""Numba kernels of a point light's spherical domain (see domains.SphericalDomain).
+
+Propagation follows kernels/propagation.py (supplement Eq. 4, 7, 9, 12) with the radial
+direction as the principal ordinate: a packet's front part moves out one shell, its back part
+in one shell, and its four side parts to the neighbours in theta and phi. The cells are not
+cubes, so each transfer has its own length (issue "every light"):
+
+    radial dr,    along theta r dtheta,    along phi r sin(theta) dphi,
+
+and each cell holds half-step transmittance and decay for each of the three (Tr, Tt, Tp and
+Dr, Dt, Dp, see spherical.py). A transfer src -> dst is attenuated by T[src] T[dst] of its
+direction and its anisotropy decays by D[src] D[dst], both applied by the sender, so pending
+packets (R, Ra) are what has arrived at a cell's centre. What leaves the domain crosses only
+the sender's half cell. The split shares are those of a cube (the six principal ordinates).
+
+Fluence: a visit of power W adds W / (r^2 Omega) to phi (Omega: the cell's solid angle), its
+power per area at the cell's centre radius, so that in vacuum phi = I / r^2 exactly at every
+centre (the inverse-square law; test). Full sphere: a side step across a pole lands in the cell
+on the other side (phi + pi, same row); a back step from the innermost shell passes the light
+(or the empty ball around it) and comes out of the antipodal cell travelling outward (a -> -a).
+
+Budget tallies as in propagation.py: [reflected (in through the inner sphere of a cone domain),
+transmitted (out through the outer sphere), side (out through a cone's lateral faces),
+absorbed].
+"""
+import math
+
+import numba as nb
+import numpy as np
+
+from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap, split
+from .sampling import corner_weights, trilinear, trilinear_clamped
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _local(frame, r, st, ct, sp, cp):
+    """World offset from the centre of the point at radius r, direction (theta, phi)."""
+    x = r * (st * cp * frame[0, 0] + st * sp * frame[1, 0] + ct * frame[2, 0])
+    y = r * (st * cp * frame[0, 1] + st * sp * frame[1, 1] + ct * frame[2, 1])
+    z = r * (st * cp * frame[0, 2] + st * sp * frame[1, 2] + ct * frame[2, 2])
+    return x, y, z
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def resample_spherical(grid, inv_voxel, grid_origin, centre, frame, params, shape, clamp, out):
+    """Sample ``grid`` (a world voxel grid) at the centres of a spherical domain's cells into
+    ``out`` float32 ``shape``; params = (r0, dr, theta0, dtheta, phi0, dphi). ``clamp``: clamp
+    to the edge outside the grid instead of returning 0."""
+    r0, dr, t0, dt, p0, dp = params[0], params[1], params[2], params[3], params[4], params[5]
+    for k in nb.prange(shape[0]):
+        r = r0 + (k + 0.5) * dr
+        for i in range(shape[1]):
+            t = t0 + (i + 0.5) * dt
+            st = math.sin(t)
+            ct = math.cos(t)
+            for j in range(shape[2]):
+                p = p0 + (j + 0.5) * dp
+                ox, oy, oz = _local(frame, r, st, ct, math.sin(p), math.cos(p))
+                x = (centre[0] + ox - grid_origin[0]) * inv_voxel[0]
+                y = (centre[1] + oy - grid_origin[1]) * inv_voxel[1]
+                z = (centre[2] + oz - grid_origin[2]) * inv_voxel[2]
+                if clamp:
+                    out[k, i, j] = trilinear_clamped(grid, x, y, z)
+                else:
+                    out[k, i, j] = trilinear(grid, x, y, z)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def spherical_index(centre, frame, params, full, wx, wy, wz):
+    """Continuous cell index (centres at integers) of world point (wx, wy, wz), and its r."""
+    dx = wx - centre[0]
+    dy = wy - centre[1]
+    dz = wz - centre[2]
+    a = dx * frame[0, 0] + dy * frame[0, 1] + dz * frame[0, 2]
+    b = dx * frame[1, 0] + dy * frame[1, 1] + dz * frame[1, 2]
+    c = dx * frame[2, 0] + dy * frame[2, 1] + dz * frame[2, 2]
+    r = math.sqrt(a * a + b * b + c * c)
+    t = math.acos(min(1.0, max(-1.0, c / r))) if r > 0.0 else 0.0
+    p = math.atan2(b, a)
+    if full and p < 0.0:
+        p += 2.0 * math.pi
+    q0 = (r - params[0]) / params[1] - 0.5
+    q1 = (t - params[2]) / params[3] - 0.5
+    q2 = (p - params[4]) / params[5] - 0.5
+    return q0, q1, q2, r
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def spherical_to_world(field, centre, frame, params, full, world_origin, voxel, out, needed):
+    """Sample a spherical domain's field (n_r, n_theta, n_phi) at the centres of world voxels
+    ``out`` (nx, ny, nz) where ``needed`` is set (0 elsewhere): trilinear in (r, theta, phi)
+    index space, clamped to the edge cells, periodic in phi on a full sphere."""
+    nx, ny, nz = out.shape
+    n0, n1, n2 = field.shape
+    for x in nb.prange(nx):
+        for y in range(ny):
+            for z in range(nz):
+                if not needed[x, y, z]:
+                    out[x, y, z] = 0.0
+                    continue
+                q0, q1, q2, _ = spherical_index(centre, frame, params, full,
+                                                world_origin[0] + x * voxel[0],
+                                                world_origin[1] + y * voxel[1],
+                                                world_origin[2] + z * voxel[2])
+                k0, k1, fk = corner_weights(q0, n0)
+                i0, i1, fi = corner_weights(q1, n1)
+                if full:
+                    jf = math.floor(q2)
+                    fj = q2 - jf
+                    j0 = int(jf) % n2
+                    j1 = (j0 + 1) % n2
+                else:
+                    j0, j1, fj = corner_weights(q2, n2)
+                c00 = field[k0, i0, j0] * (1 - fj) + field[k0, i0, j1] * fj
+                c01 = field[k0, i1, j0] * (1 - fj) + field[k0, i1, j1] * fj
+                c10 = field[k1, i0, j0] * (1 - fj) + field[k1, i0, j1] * fj
+                c11 = field[k1, i1, j0] * (1 - fj) + field[k1, i1, j1] * fj
+                out[x, y, z] = (c00 * (1 - fi) + c01 * fi) * (1 - fk) + (c10 * (1 - fi) + c11 * fi) * fk
+
+
+@nb.njit(fastmath=True, cache=True)
+def splat_to_grid(Q, centre, frame, params, grid_origin, h, grid_frame, out):
+    """Add each spherical cell's power Q (n_r, n_theta, n_phi) to the cell of a rectilinear
+    domain (frame rows d, u, v, corner ``grid_origin``, cubic cells h; ``out`` its shape) that
+    holds the cell's centre; power whose centre falls outside is added to the nearest edge
+    cell. Serial: two cells may land in the same target."""
+    n0, n1, n2 = Q.shape
+    m0, m1, m2 = out.shape
+    r0, dr, t0, dt, p0, dp = params[0], params[1], params[2], params[3], params[4], params[5]
+    for k in range(n0):
+        r = r0 + (k + 0.5) * dr
+        for i in range(n1):
+            t = t0 + (i + 0.5) * dt
+            st = math.sin(t)
+            ct = math.cos(t)
+            for j in range(n2):
+                e = Q[k, i, j]
+                if e == 0.0:
+                    continue
+                p = p0 + (j + 0.5) * dp
+                ox, oy, oz = _local(frame, r, st, ct, math.sin(p), math.cos(p))
+                px = centre[0] + ox - grid_origin[0]
+                py = centre[1] + oy - grid_origin[1]
+                pz = centre[2] + oz - grid_origin[2]
+                a = int(math.floor((px * grid_frame[0, 0] + py * grid_frame[0, 1] + pz * grid_frame[0, 2]) / h))
+                b = int(math.floor((px * grid_frame[1, 0] + py * grid_frame[1, 1] + pz * grid_frame[1, 2]) / h))
+                c = int(math.floor((px * grid_frame[2, 0] + py * grid_frame[2, 1] + pz * grid_frame[2, 2]) / h))
+                out[min(max(a, 0), m0 - 1), min(max(b, 0), m1 - 1), min(max(c, 0), m2 - 1)] += e
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _send(R, Ra, k, i, j, e, ea, T, D):
+    """Deposit a part after its transfer (transmittance T, decay D); returns the power absorbed
+    on the way."""
+    R[k, i, j] += e * T
+    Ra[k, i, j] += ea * T * D
+    return e * (np.float32(1.0) - T)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip,
+                          w_min, inv_area, phi, phia, bands, halo, anti, tally_b, handover,
+                          diffusive, Q):
+    """One sweep over the shells (``forward``: outward), each band of theta rows by its own
+    thread (as kernels.propagation.sweep_bands); cells with pending power <= w_min wait.
+
+    inv_area float32 (n_r, n_theta): 1 / (r^2 Omega). halo float32 (n_bands, 2, 2, n_r, n_phi)
+    parks side parts crossing into the band above/below; anti float32 (2, n_theta, n_phi)
+    parks what passes the light into the antipodal cell of shell 0 (full sphere; each target
+    has one sender). tally_b float64 (n_bands, 5): four tallies and the cells that sent.
+    """
+    n0, n1, n2 = R.shape
+    half = n2 // 2
+    one = np.float32(1.0)
+    for bb in nb.prange(bands.shape[0] - 1):
+        b = np.int64(bb)
+        lo = bands[b]
+        hi = bands[b + 1]
+        refl = 0.0
+        trans = 0.0
+        side_out = 0.0
+        absorbed = 0.0
+        sent = 0
+        for step in range(n0):
+            k = step if forward else n0 - 1 - step
+            for si in range(hi - lo):
+                i = hi - 1 - si if flip else lo + si
+                for sj in range(n2):
+                    j = n2 - 1 - sj if flip else sj
+                    w = R[k, i, j]
+                    if w <= w_min:
+                        continue
+                    wa = Ra[k, i, j]
+                    R[k, i, j] = 0.0
+                    Ra[k, i, j] = 0.0
+                    sent += 1
+                    if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
+                        continue
+                    phi[k, i, j] += w * inv_area[k, i]
+                    phia[k, i, j] += wa * inv_area[k, i]
+                    ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
+                    # radial: out one shell, in one shell
+                    tr = Tr[k, i, j]
+                    dr_ = Dr[k, i, j]
+                    if k + 1 < n0:
+                        absorbed += _send(R, Ra, k + 1, i, j, ef, efa, tr * Tr[k + 1, i, j],
+                                         dr_ * Dr[k + 1, i, j])
+                    else:
+                        trans += ef * tr
+                        absorbed += ef * (one - tr)
+                    if eb > 0.0:
+                        if k > 0:
+                            absorbed += _send(R, Ra, k - 1, i, j, eb, eba, tr * Tr[k - 1, i, j],
+                                             dr_ * Dr[k - 1, i, j])
+                        elif full:
+                            ia = n1 - 1 - i
+                            ja = (j + half) % n2
+                            T = tr * Tr[0, ia, ja]
+                            anti[0, ia, ja] += eb * T
+                            anti[1, ia, ja] -= eba * T * dr_ * Dr[0, ia, ja]
+                            absorbed += eb * (one - T)
+                        else:
+                            refl += eb * tr
+                            absorbed += eb * (one - tr)
+                    if es <= 0.0:
+                        continue
+                    # phi neighbours: same band
+                    tp = Tp[k, i, j]
+                    dp_ = Dp[k, i, j]
+                    for jj in (j - 1, j + 1):
+                        if jj < 0 or jj >= n2:
+                            if not full:
+                                side_out += es * tp
+                                absorbed += es * (one - tp)
+                                continue
+                            jj = _wrap(jj, n2)
+                        absorbed += _send(R, Ra, k, i, jj, es, esa, tp * Tp[k, i, jj],
+                                         dp_ * Dp[k, i, jj])
+                    # theta neighbours: across a pole (same row), in the band, or parked
+                    tt = Tt[k, i, j]
+                    dt_ = Dt[k, i, j]
+                    for side in range(2):
+                        ii = i - 1 + 2 * side
+                        if ii < 0 or ii >= n1:
+                            if not full:
+                                side_out += es * tt
+                                absorbed += es * (one - tt)
+                                continue
+                            jp = (j + half) % n2
+                            absorbed += _send(R, Ra, k, i, jp, es, esa, tt * Tt[k, i, jp],
+                                             dt_ * Dt[k, i, jp])
+                        elif ii >= lo and ii < hi:
+                            absorbed += _send(R, Ra, k, ii, j, es, esa, tt * Tt[k, ii, j],
+                                             dt_ * Dt[k, ii, j])
+                        else:
+                            T = tt * Tt[k, ii, j]
+                            halo[b, side, 0, k, j] += es * T
+                            halo[b, side, 1, k, j] += esa * T * dt_ * Dt[k, ii, j]
+                            absorbed += es * (one - T)
+        tally_b[b, REFLECTED] += refl
+        tally_b[b, TRANSMITTED] += trans
+        tally_b[b, SIDE_ESCAPED] += side_out
+        tally_b[b, ABSORBED] += absorbed
+        tally_b[b, 4] += sent
+
+
+@nb.njit(fastmath=True, cache=True)
+def deliver(R, Ra, bands, halo, anti):
+    """After a sweep: side parts parked at band edges go to their rows (bands never wrap in
+    theta), and what passed the light goes to shell 0."""
+    n0, n1, n2 = R.shape
+    for b in range(bands.shape[0] - 1):
+        for side in range(2):
+            ii = bands[b] - 1 if side == 0 else bands[b + 1]
+            if ii < 0 or ii >= n1:
+                continue
+            for k in range(n0):
+                for j in range(n2):
+                    e = halo[b, side, 0, k, j]
+                    if e != 0.0:
+                        _add(R, Ra, k, ii, j, e, halo[b, side, 1, k, j])
+                        halo[b, side, 0, k, j] = 0.0
+                        halo[b, side, 1, k, j] = 0.0
+    for i in range(n1):
+        for j in range(n2):
+            if anti[0, i, j] != 0.0:
+                _add(R, Ra, 0, i, j, anti[0, i, j], anti[1, i, j])
+                anti[0, i, j] = 0.0
+                anti[1, i, j] = 0.0

@@ -1,0 +1,173 @@
+"""Principal-Ordinate Propagation of a point light (issue "every light", METHOD.md steps 2-5).
+
+Data flow, as for a sun: medium -> the light's spherical domain (domains.SphericalDomain:
+cells in r, theta, phi, the principal ordinate radial) -> injection of unit intensity at the
+light -> thresholded Gauss-Seidel sweeps along r (kernels/spherical.py) -> fluence phi and
+phi*A per cell -> the world grid. The isotropic stage ("diffusion") runs on a rectilinear grid
+over the medium: power handed over in the spherical cells is added to the grid cell holding
+each cell's centre (its first moment is left out: packets hand over at |a| < handover, so it
+is at most ``handover`` times the power; this is a small bias).
+
+For rendering, the walk's fields go to the world grid multiplied by r^2 (r: distance to the
+light): r^2 phi is smooth where phi has the 1/r^2 spike of the light (in vacuum it is I,
+constant), so trilinear lookup stays exact near the light; the renderer divides by r^2 of each
+sample (kernels/render.py).
+
+Point lights always use the sweep solver (``method.solver`` = "jacobi" applies to suns only).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .diffusion import solve_diffusion
+from .domains import SphericalDomain, directional_domain, spherical_domain
+from .kernels import propagation as KP
+from .kernels import spherical as KS
+from .lights import PointLight
+from .medium import Medium
+from .propagate import (Budget, DomainSolution, PropagationResult, default_max_iterations,
+                        medium_factors, split_table32, sweep_until_converged)
+from .propagate import resample_medium as resample_rectilinear
+from .scene import Method
+
+
+def resample_medium(medium: Medium, dom: SphericalDomain, channel: int = 0):
+    """sigma_t, sigma_s, g of colour ``channel`` at the spherical cells' centres, float32
+    (n_r, n_theta, n_phi) each (per-voxel albedo and g clamped to the edge outside the grid)."""
+    def grid(values, clamp):
+        out = np.empty(dom.shape, np.float32)
+        KS.resample_spherical(values, 1.0 / medium.voxel_size, medium.origin, dom.centre, dom.frame,
+                              dom.params, dom.shape, clamp, out)
+        return out
+    sigma_t = grid(medium.density, False) * np.float32(medium.scale[channel])
+    if medium.albedo_per_voxel:
+        sigma_s = sigma_t * grid(medium.albedo, True)
+    else:
+        sigma_s = sigma_t * np.float32(medium.albedo[channel])
+    g = grid(medium.g, True) if medium.g_per_voxel else np.full(dom.shape, medium.g, np.float32)
+    return sigma_t, sigma_s, g
+
+
+def transfer_lengths(dom: SphericalDomain):
+    """Lengths of a step along r, theta and phi from each cell's centre, broadcastable to
+    the domain's shape: dr, r dtheta, r sin(theta) dphi."""
+    r = dom.radii[:, None, None]
+    sin_t = np.sin(dom.thetas)[None, :, None]
+    return np.full((1, 1, 1), dom.dr), r * dom.dtheta, r * sin_t * dom.dphi
+
+
+def inverse_area(dom: SphericalDomain) -> np.ndarray:
+    """float32 (n_r, n_theta): 1 / (r^2 Omega), the fluence per unit power of a visit."""
+    return (1.0 / (dom.radii[:, None] ** 2 * dom.solid_angles[None, :])).astype(np.float32)
+
+
+def propagate_point(sigma_t, sigma_s, g, dom: SphericalDomain, method: Method, progress=None):
+    """Propagate unit intensity from the light through its spherical domain.
+
+    Returns (PropagationResult with phi, phia on the domain, Q0: float32 domain-shaped power
+    handed to the isotropic stage, all zero without it). Budget in W per unit intensity
+    [W/sr]: the light emits 4 pi (full sphere) or the domain's solid angle.
+    """
+    shape = dom.shape
+    s_r, s_t, s_p = transfer_lengths(dom)
+    Tr, Dr = medium_factors(sigma_t, sigma_s, g, s_r, method.decay)
+    Tt, Dt = medium_factors(sigma_t, sigma_s, g, s_t, method.decay)
+    Tp, Dp = medium_factors(sigma_t, sigma_s, g, s_p, method.decay)
+    omega = np.broadcast_to(dom.solid_angles[:, None], shape[1:])
+    budget = Budget(injected=float(omega.sum(dtype=np.float64)))
+    # pending power at the centres of shell 0: it has crossed half a cell (Tr[0])
+    R = np.zeros(shape, np.float32)
+    R[0] = omega * Tr[0]
+    Ra = R * np.float32(1.0)          # a0 = 1: the light leaves radially
+    Ra[0] *= Dr[0]
+    budget.absorbed = float(np.sum(omega * (1.0 - Tr[0]), dtype=np.float64))
+    phi = np.zeros(shape, np.float32)
+    phia = np.zeros(shape, np.float32)
+    if method.isotropic == "diffusion":
+        diffusive = (sigma_s > 0) & (sigma_t > 0)
+        Q = np.zeros((2,) + shape, np.float32)
+        eps = float(method.handover)
+    else:
+        diffusive = np.zeros((1, 1, 1), np.bool_)
+        Q = np.zeros((2, 1, 1, 1), np.float32)
+        eps = -1.0
+    bands = KP.band_edges(shape[1])
+    halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
+    anti = np.zeros((2,) + shape[1:], np.float32)
+    tally_b = np.zeros((len(bands) - 1, 5))
+    tally = np.zeros(4)
+    table = split_table32()
+    moment = method.rule == "moment"
+    inv_area = inverse_area(dom)
+
+    def one_sweep(it, w_min):
+        tally_b[:] = 0.0
+        KS.sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, dom.full,
+                                 it % 2 == 0, it % 4 >= 2, np.float32(w_min), inv_area, phi, phia,
+                                 bands, halo, anti, tally_b, eps, diffusive, Q)
+        KS.deliver(R, Ra, bands, halo, anti)
+        tally[:] += tally_b[:, :4].sum(axis=0)
+        return KP.total_energy(R), tally_b[:, 4].sum()
+
+    t0 = time.perf_counter()
+    target = method.tolerance * budget.injected
+    cap = method.max_iterations or default_max_iterations(shape, "sweep")
+    in_flight, it = sweep_until_converged(one_sweep, budget.injected, target, cap, R.size,
+                                          budget.injected, progress)
+    budget.reflected, budget.transmitted, budget.side = (float(x) for x in tally[:3])
+    budget.absorbed += float(tally[KP.ABSORBED])
+    budget.in_flight = in_flight
+    result = PropagationResult(phi, phia, budget, it, it * R.size, in_flight / budget.injected,
+                               in_flight <= target, time.perf_counter() - t0)
+    return result, (Q[0] if eps > 0 else np.zeros(shape, np.float32))
+
+
+def diffuse_point(Q0, medium: Medium, dom: SphericalDomain, method: Method, channel: int, result):
+    """The isotropic stage of a point light: the handed-over power Q0 (spherical cells) on a
+    rectilinear grid over the medium (``method.diffusion_resolution`` cells along its longest
+    side, or ``resolution``), solved by diffusion.solve_diffusion. Adds to result's budget;
+    returns (the grid's DirectionalDomain, DiffusionResult)."""
+    grid = directional_domain(medium, np.array([0.0, 0.0, 1.0]),
+                              method.diffusion_resolution or method.resolution)
+    source = np.zeros(grid.shape, np.float32)
+    KS.splat_to_grid(Q0, dom.centre, dom.frame, dom.params, grid.origin, grid.h, grid.frame, source)
+    sigma_t, sigma_s, g = resample_rectilinear(medium, grid, channel)
+    d = solve_diffusion(source, np.zeros_like(source), sigma_t, sigma_s, g, grid.h,
+                        rtol=0.1 * method.tolerance)
+    b = result.budget
+    b.absorbed += d.absorbed
+    b.transmitted += sum(d.leaked[:3])       # out of the grid's faces
+    b.diffusion_leak = d.leaked[3]
+    result.diffusion = d
+    return grid, d
+
+
+def solve_point_light(medium: Medium, light: PointLight, method: Method, progress=None,
+                      channel: int = 0):
+    """Build the light's spherical domain, resample the medium (colour ``channel``) into it,
+    propagate unit intensity and, with the diffusion stage, diffuse what was handed over.
+    Returns a propagate.DomainSolution (its ``diffusion_domain`` is the rectilinear grid)."""
+    t0 = time.perf_counter()
+    dom = spherical_domain(medium, light.position, method.resolution)
+    sigma_t, sigma_s, g = resample_medium(medium, dom, channel)
+    t1 = time.perf_counter()
+    result, Q0 = propagate_point(sigma_t, sigma_s, g, dom, method, progress)
+    del sigma_t, sigma_s, g
+    ds = DomainSolution(light, dom, result, t1 - t0, channel)
+    if method.isotropic == "diffusion":
+        t2 = time.perf_counter()
+        ds.diffusion_domain, _ = diffuse_point(Q0, medium, dom, method, channel, result)
+        result.seconds_diffusion = time.perf_counter() - t2
+    return ds
+
+
+def fields_to_world(ds, medium: Medium, phi: np.ndarray, phia: np.ndarray, needed: np.ndarray):
+    """The walk's fields of a point light's domain on the world grid, times r^2 (see the module
+    docstring), into phi, phia float32 (nx, ny, nz)."""
+    dom = ds.domain
+    r2 = (dom.radii ** 2)[:, None, None].astype(np.float32)
+    for src, out in ((ds.result.phi, phi), (ds.result.phia, phia)):
+        KS.spherical_to_world(np.ascontiguousarray(src * r2), dom.centre, dom.frame, dom.params,
+                              dom.full, medium.origin, medium.voxel_size, out, needed)
