@@ -1,4 +1,4 @@
-"""Command line: ``popvol render``, ``reference``, ``compare``, ``bench``, ``hg-figure``.
+"""Command line: ``popvol render``, ``view``, ``reference``, ``compare``, ``bench``, ``hg-figure``.
 
 Bad input ends with one line ``popvol: error: ...`` on stderr and exit status 2, never a
 traceback.
@@ -200,6 +200,37 @@ def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, 
     click.echo(f"relMSE {res['relmse']:.4g}  RMSE {res['rmse']:.4g}  brightness x{res['brightness_ratio']:.3f}  "
                f"SSIM {res['ssim']:.3f}  FLIP {'n/a' if flip is None else f'{flip:.3f}'}  "
                f"reference noise {'n/a' if noise is None else f'{noise:.2g}'}  popvol {seconds:.2f} s")
+
+
+@cli.command()
+@click.argument("scene", required=False, type=click.Path(dir_okay=False))
+@click.option("--port", type=int, default=8765, show_default=True, help="Port to listen on (0: any free port).")
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to bind. Anything but a loopback address exposes the viewer to your network.")
+@click.option("--no-browser", is_flag=True, help="Only print the address (headless use).")
+@click.option("--width", type=int, help="Full view width in pixels (default: the scene's).")
+@click.option("--height", type=int, help="Full view height in pixels (default: the scene's).")
+@click.option("--resolution", type=int, default=64, show_default=True,
+              help="Cells along the longest side of each light domain in the view (at most the scene's; saved in the TOML).")
+@click.option("--draft-resolution", type=int, default=32, show_default=True,
+              help="Cells of the domains propagated while the light or medium is being dragged.")
+@click.option("--save-dir", type=click.Path(file_okay=False), default=".", show_default=True,
+              help="Folder where the page's Save button writes popvol-view-NNN.png and .toml.")
+def view(scene, port, host, no_browser, width, height, resolution, draft_resolution, save_dir):
+    """Interactive viewer in the browser: orbit the camera, move the sun, change the medium."""
+    try:
+        import starlette  # noqa: F401
+        import tomli_w  # noqa: F401
+        import uvicorn  # noqa: F401
+    except ImportError as e:
+        raise PopvolError(f"popvol view needs the viewer extra ({e.name} is missing): "
+                          "pip install 'popvol[viewer]'") from None
+    from .viewer.engine import Engine
+    from .viewer.server import serve
+    if not Path(save_dir).is_dir():
+        raise PopvolError(f"--save-dir {save_dir}: folder does not exist")
+    engine = Engine(scene, width=width, height=height, resolution=resolution, draft_resolution=draft_resolution)
+    serve(engine, host, port, open_browser=not no_browser, save_dir=save_dir, echo=click.echo)
 
 
 def _check_writable(path: str, option: str) -> None:

@@ -1,0 +1,278 @@
+"""The viewer's web server: the page, its static files, and one websocket per open page.
+
+Protocol (JSON text messages):
+
+page -> server
+    {"type": "set", "settings": {"sun_azimuth": 30.0, ...}}   change some controls
+    {"type": "save"}                                            save the full view (PNG + TOML)
+server -> page
+    {"type": "init", "settings": {...}, "ranges": {...}, ...}  once, on connecting
+    {"type": "frame", "png": base64, "level": "draft"|"full", "version": n, "seconds": {...}, ...}
+    {"type": "saved", "png": path, "toml": path}
+    {"type": "error", "message": "..."}                        a bad message; the server goes on
+
+Latest request wins: each page has one pending-request slot, overwritten by every "set"; one
+worker thread (shared by all pages) renders. While messages arrive, frames are drafts; once
+none has arrived for ``refine_delay`` seconds after a draft, the same settings are rendered at
+full quality. A burst of messages therefore costs one frame per render time, never a queue.
+"""
+from __future__ import annotations
+
+import asyncio
+import base64
+import ipaddress
+import logging
+import socket
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from ..errors import PopvolError
+from . import settings as S
+from .engine import DRAFT, FULL, Engine
+
+STATIC = Path(__file__).resolve().parent / "static"
+REFINE_DELAY = 0.2          # seconds without input before a draft is refined
+MAX_MESSAGE = 64 * 1024     # bytes: the page's messages are a few hundred
+log = logging.getLogger("popvol.viewer")
+
+
+@dataclass(frozen=True)
+class Request:
+    version: int
+    settings: S.Settings
+    level: str
+
+
+class Session:
+    """One open page: its settings, its pending-request slot and its render loop."""
+
+    def __init__(self, ws, engine: Engine, worker: ThreadPoolExecutor, save_dir: Path,
+                 refine_delay: float = REFINE_DELAY):
+        self.ws, self.engine, self.worker = ws, engine, worker
+        self.save_dir, self.refine_delay = save_dir, refine_delay
+        self.settings = engine.initial
+        self.version = 0
+        self.slot: Request | None = Request(0, self.settings, FULL)   # the first frame
+        self.save_wanted: S.Settings | None = None
+        self.wake = asyncio.Event()
+
+    async def run(self):
+        """Receive messages until the page goes away; the render loop runs beside."""
+        from starlette.websockets import WebSocketDisconnect
+        await self.ws.send_json(init_message(self.engine))
+        renderer = asyncio.create_task(self.render_loop())
+        try:
+            while True:
+                msg = await self.ws.receive()
+                if msg["type"] == "websocket.disconnect":
+                    break
+                await self.handle(msg.get("text") if msg.get("text") is not None else msg.get("bytes"))
+        except WebSocketDisconnect:
+            pass
+        finally:
+            renderer.cancel()
+
+    async def handle(self, text):
+        """Check one message and update the slot (never waits for a render)."""
+        try:
+            m = S.parse_message(text, self.engine.distance_range, self.engine.has_sun)
+        except PopvolError as e:
+            await self.send_error(str(e))
+            return
+        if m.kind == "save":
+            self.save_wanted = self.settings
+        else:
+            self.settings = replace(self.settings, **m.changes)
+            self.version += 1
+            self.slot = Request(self.version, self.settings, DRAFT)    # overwrites any pending one
+        self.wake.set()
+
+    async def render_loop(self):
+        """Take the latest request, render it on the worker, send it; refine after a pause."""
+        loop = asyncio.get_running_loop()
+        refine = None                       # the draft request to refine once input stops
+        while True:
+            if self.slot is None and self.save_wanted is None:
+                self.wake.clear()
+                if refine is None:
+                    await self.wake.wait()
+                else:
+                    try:
+                        await asyncio.wait_for(self.wake.wait(), self.refine_delay)
+                    except asyncio.TimeoutError:
+                        if refine.version == self.version:
+                            self.slot = Request(refine.version, refine.settings, FULL)
+                        refine = None
+                continue
+            if self.save_wanted is not None:
+                wanted, self.save_wanted = self.save_wanted, None
+                try:
+                    png, toml = await loop.run_in_executor(self.worker, self.engine.save, wanted, self.save_dir)
+                    await self.ws.send_json({"type": "saved", "png": str(png), "toml": str(toml)})
+                except PopvolError as e:
+                    await self.send_error(f"save failed: {e}")
+                continue
+            req, self.slot = self.slot, None
+            try:
+                frame = await loop.run_in_executor(self.worker, self.engine.frame, req.settings, req.level)
+            except PopvolError as e:
+                await self.send_error(str(e))
+                continue
+            except Exception as e:          # a bug: say so on the page and in the log, keep serving
+                log.exception("rendering failed")
+                await self.send_error(f"internal error while rendering ({type(e).__name__}: {e}); please report it")
+                continue
+            await self.ws.send_json(frame_message(frame, req.version, self.engine))
+            refine = req if req.level == DRAFT else None
+
+    async def send_error(self, message: str):
+        try:
+            await self.ws.send_json({"type": "error", "message": message})
+        except Exception:                   # the page has gone; nothing to tell
+            pass
+
+
+def init_message(engine: Engine) -> dict:
+    ranges = {k: [lo, hi] for k, (lo, hi, _) in S.RANGES.items()}
+    ranges["camera_distance"] = list(engine.distance_range)
+    return {"type": "init", "scene": engine.base.source, "settings": engine.initial.as_dict(),
+            "ranges": ranges, "has_sun": engine.has_sun,
+            "size": list(engine.size[FULL]), "draft_size": list(engine.size[DRAFT]),
+            "resolution": engine.method.resolution, "draft_resolution": engine.draft_method.resolution,
+            "camera_frame": S.orbit_frame(engine.base.camera.up).tolist()}
+
+
+def frame_message(frame, version: int, engine: Engine) -> dict:
+    return {"type": "frame", "version": version, "level": frame.level,
+            "width": frame.width, "height": frame.height, "resolution": frame.resolution,
+            "propagated": frame.propagated, "seconds": frame.seconds,
+            "solves": engine.solves, "renders": engine.renders,
+            "settings": frame.settings.as_dict(), "png": base64.b64encode(frame.png).decode("ascii")}
+
+
+def create_app(engine: Engine, save_dir: Path, worker: ThreadPoolExecutor | None = None,
+               allowed_hosts: list[str] | None = None, refine_delay: float = REFINE_DELAY):
+    """The Starlette app: "/" the page, "/static/..." its files, "/ws" the websocket.
+
+    allowed_hosts: Host header values accepted (DNS-rebinding guard); None accepts any.
+    Websockets whose Origin is another site are refused (a web page elsewhere cannot drive
+    the viewer).
+    """
+    from starlette.applications import Starlette
+    from starlette.middleware import Middleware
+    from starlette.middleware.trustedhost import TrustedHostMiddleware
+    from starlette.responses import FileResponse
+    from starlette.routing import Mount, Route, WebSocketRoute
+    from starlette.staticfiles import StaticFiles
+
+    worker = worker or ThreadPoolExecutor(max_workers=1, thread_name_prefix="popvol-render")
+
+    async def index(request):
+        return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+
+    async def websocket(ws):
+        origin = ws.headers.get("origin")
+        if origin is not None and origin.split("://", 1)[-1] != ws.headers.get("host"):
+            await ws.close(code=1008)
+            return
+        await ws.accept()
+        await Session(ws, engine, worker, Path(save_dir), refine_delay).run()
+
+    middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts)] if allowed_hosts else []
+    app = Starlette(routes=[Route("/", index), WebSocketRoute("/ws", websocket),
+                            Mount("/static", StaticFiles(directory=STATIC, follow_symlink=False), name="static")],
+                    middleware=middleware)
+    app.state.engine = engine
+    return app
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def listen(host: str, port: int) -> socket.socket:
+    """A listening socket on host:port (port 0: any free port); one-line error if impossible."""
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        raise PopvolError(f"--port {port!r} must be an integer in [0, 65535]")
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except socket.gaierror as e:
+        raise PopvolError(f"--host {host}: cannot resolve ({e.strerror})") from None
+    family, _, _, _, address = infos[0]
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind(address)
+    except OSError as e:
+        sock.close()
+        raise PopvolError(f"cannot listen on {host}:{port} ({e.strerror})") from None
+    sock.listen(64)
+    return sock
+
+
+def make_server(engine: Engine, sock: socket.socket, save_dir, refine_delay: float = REFINE_DELAY):
+    """A uvicorn Server for the app on the listening ``sock`` (not started)."""
+    import uvicorn
+    host, port = sock.getsockname()[:2]
+    hosts = None
+    if is_loopback(host):
+        hosts = ["127.0.0.1", "localhost", "[::1]"]
+    app = create_app(engine, Path(save_dir), allowed_hosts=hosts, refine_delay=refine_delay)
+    config = uvicorn.Config(app, log_level="warning", ws_max_size=MAX_MESSAGE, lifespan="off")
+    return uvicorn.Server(config)
+
+
+def url_of(sock: socket.socket) -> str:
+    host, port = sock.getsockname()[:2]
+    return f"http://{'[' + host + ']' if ':' in host else host}:{port}/"
+
+
+def serve(engine: Engine, host: str = "127.0.0.1", port: int = 8765, open_browser: bool = True,
+          save_dir=".", echo=print):
+    """Warm the engine up, listen, print the address, open a browser; serve until Ctrl+C."""
+    import webbrowser
+    sock = listen(host, port)
+    if not is_loopback(host):
+        echo(f"popvol view: warning: listening on {host}, reachable from other machines; "
+             "anyone who can reach it can drive the viewer and write views into the save folder")
+    t0 = time.perf_counter()
+    engine.frame(engine.initial, DRAFT)     # compiles or loads the kernels, first solution
+    engine.frame(engine.initial, FULL)
+    echo(f"popvol view: {engine.base.source}, ready in {time.perf_counter() - t0:.1f} s")
+    url = url_of(sock)
+    echo(f"popvol view: open {url}  (Ctrl+C to stop)")
+    sys.stdout.flush()
+    if open_browser:
+        webbrowser.open(url)
+    make_server(engine, sock, save_dir).run(sockets=[sock])
+
+
+@contextmanager
+def running(engine: Engine, save_dir=".", host: str = "127.0.0.1", port: int = 0,
+            refine_delay: float = REFINE_DELAY):
+    """Serve in a background thread (for tests and benchmarks); yields the page's URL."""
+    sock = listen(host, port)
+    server = make_server(engine, sock, save_dir, refine_delay)
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    try:
+        t0 = time.monotonic()
+        while not server.started:
+            if not thread.is_alive() or time.monotonic() - t0 > 30:
+                raise RuntimeError("the viewer's server did not start")
+            time.sleep(0.01)
+        yield url_of(sock)
+    finally:
+        server.should_exit = True
+        thread.join(timeout=10)
+        sock.close()

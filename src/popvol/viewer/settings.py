@@ -1,0 +1,292 @@
+"""What the viewer's controls set, how a message from the page is checked, and how the settings
+become a scene (to render) and a TOML table (to save).
+
+The page sends settings as plain numbers (degrees, multipliers, stops). One rule keeps the saved
+file exact: every value that goes into the view's scene is computed once as the Python float
+(or list of floats) that the TOML file will hold, and the scene's objects are built from those
+same values by the same constructors that :func:`popvol.scene_from_dict` calls. Loading the
+saved file therefore rebuilds the very same scene, bit for bit.
+
+Angles (degrees), with the world's +y as the sky's zenith:
+- sun: ``sun_elevation`` above the horizon, ``sun_azimuth`` from +z toward +x; the sun lies
+  along s = (cos el sin az, sin el, cos el cos az) and its light travels along -s.
+- camera: an orbit about the scene camera's target, in a frame whose pole is the camera's
+  ``up`` (for up = +y the same convention as the sun); ``camera_distance`` in world units.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import PopvolError
+from ..lights import DirectionalLight
+
+#: Allowed range of every setting the page may send: (low, high, open interval?).
+#: ``camera_distance`` is checked against the scene's own distance (see ``distance_range``).
+RANGES = {
+    "camera_azimuth": (-720.0, 720.0, False),
+    "camera_elevation": (-89.0, 89.0, False),
+    "camera_distance": (None, None, False),
+    "sun_azimuth": (-720.0, 720.0, False),
+    "sun_elevation": (-90.0, 90.0, False),
+    "density": (0.0, 100.0, False),
+    "albedo": (0.0, 1.0, False),
+    "g": (-1.0, 1.0, True),
+    "intensity": (0.0, 100.0, False),
+    "exposure": (-16.0, 16.0, False),
+}
+
+#: Settings that change the propagated light (the rest only change the rendering).
+PROPAGATION_KEYS = ("sun_azimuth", "sun_elevation", "density", "albedo", "g")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The state of the viewer's controls; all plain floats.
+
+    density and intensity multiply the scene's medium scale and sun irradiance; albedo and g
+    replace the medium's (None: keep the scene's own, e.g. an RGB albedo or a per-voxel g);
+    exposure is the PNG exposure in stops. sun_* are None when the scene has no sun.
+    """
+
+    camera_azimuth: float
+    camera_elevation: float
+    camera_distance: float
+    sun_azimuth: float | None
+    sun_elevation: float | None
+    density: float = 1.0
+    albedo: float | None = None
+    g: float | None = None
+    intensity: float = 1.0
+    exposure: float = 0.0
+
+    def as_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def propagation_key(self) -> tuple:
+        """What the propagated light depends on (not camera, intensity or exposure)."""
+        return tuple(getattr(self, k) for k in PROPAGATION_KEYS)
+
+
+# ---------------------------------------------------------------------------------------------
+# Messages from the page
+# ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Message:
+    """A checked message: kind "set" (with the changed settings) or "save"."""
+
+    kind: str
+    changes: dict
+
+
+def parse_message(text, distance_range: tuple[float, float], has_sun: bool) -> Message:
+    """Check one websocket message from the page; raise a one-line PopvolError if it is bad.
+
+    Accepted: ``{"type": "set", "settings": {name: number, ...}}`` (names and ranges in
+    RANGES) and ``{"type": "save"}``.
+    """
+    if not isinstance(text, str):
+        raise PopvolError("messages must be JSON text, got binary data")
+    try:
+        msg = json.loads(text, parse_constant=_no_constant)
+    except ValueError as e:
+        raise PopvolError(f"message is not valid JSON ({e})") from None
+    if not isinstance(msg, dict):
+        raise PopvolError(f"message must be a JSON object, got {type(msg).__name__}")
+    kind = msg.get("type")
+    if kind == "save":
+        _only_keys(msg, {"type"}, "save message")
+        return Message("save", {})
+    if kind != "set":
+        raise PopvolError(f"message type {kind!r} is unknown (known: 'set', 'save')")
+    _only_keys(msg, {"type", "settings"}, "set message")
+    changes = msg.get("settings")
+    if not isinstance(changes, dict) or not changes:
+        raise PopvolError("set message needs a non-empty object 'settings'")
+    out = {}
+    for name, value in changes.items():
+        if name not in RANGES:
+            raise PopvolError(f"unknown setting {name!r} (known: {', '.join(RANGES)})")
+        if name.startswith("sun_") and not has_sun:
+            raise PopvolError(f"setting {name!r}: this scene has no directional light to move")
+        lo, hi, open_ = RANGES[name]
+        if name == "camera_distance":
+            lo, hi = distance_range
+        out[name] = _number(value, name, lo, hi, open_)
+    return Message("set", out)
+
+
+def _no_constant(name):
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _only_keys(msg: dict, known: set, what: str):
+    extra = sorted(set(msg) - known)
+    if extra:
+        raise PopvolError(f"{what} has unknown key(s) {', '.join(map(repr, extra))}")
+
+
+def _number(v, name: str, lo: float, hi: float, open_: bool) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise PopvolError(f"setting {name} = {v!r} must be a finite number")
+    inside = lo < v < hi if open_ else lo <= v <= hi
+    if not inside:
+        brackets = "()" if open_ else "[]"
+        raise PopvolError(f"setting {name} = {v!r} is outside {brackets[0]}{lo:g}, {hi:g}{brackets[1]}")
+    return float(v)
+
+
+# ---------------------------------------------------------------------------------------------
+# Angles <-> vectors
+# ---------------------------------------------------------------------------------------------
+
+def orbit_frame(up) -> np.ndarray:
+    """float64 (3, 3): rows e1 (azimuth 0), e2 (azimuth 90), u (the pole = unit up)."""
+    u = np.asarray(up, np.float64) / np.linalg.norm(up)
+    ref = np.array([0.0, 0.0, 1.0]) if abs(u[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e1 = ref - u * (ref @ u)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(u, e1), u])
+
+
+def angles_of(v, frame: np.ndarray) -> tuple[float, float]:
+    """(azimuth, elevation) in degrees of the direction ``v`` (3,) in ``frame`` (orbit_frame)."""
+    a, b, c = frame @ (np.asarray(v, np.float64) / np.linalg.norm(v))
+    return math.degrees(math.atan2(b, a)), math.degrees(math.asin(max(-1.0, min(1.0, c))))
+
+
+def direction_of(azimuth: float, elevation: float, frame: np.ndarray) -> np.ndarray:
+    """Unit vector float64 (3,) at (azimuth, elevation) degrees in ``frame``."""
+    az, el = math.radians(azimuth), math.radians(elevation)
+    return frame.T @ np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+
+
+SKY = orbit_frame((0.0, 1.0, 0.0))        # the sun's frame: e1 = +z, e2 = +x, pole +y
+
+
+def _floats(a) -> list[float]:
+    return [float(x) for x in np.asarray(a, np.float64).ravel()]
+
+
+# ---------------------------------------------------------------------------------------------
+# Settings -> scene values -> scene objects and TOML
+# ---------------------------------------------------------------------------------------------
+
+def sun_index(scene) -> int | None:
+    """Index in scene.lights of the light the sun control moves: the first directional light
+    that does not come from an environment map (None if there is none)."""
+    for i, light in enumerate(scene.lights):
+        if isinstance(light, DirectionalLight) and not light.from_environment:
+            return i
+    return None
+
+
+def sun_entry(data: dict) -> int | None:
+    """Index in the TOML's [[lights]] list of that same light (None if there is none)."""
+    for i, entry in enumerate(_light_list(data)):
+        if isinstance(entry, dict) and entry.get("type", "directional") == "directional":
+            return i
+    return None
+
+
+def _light_list(data: dict) -> list:
+    lights = data.get("lights", data.get("light", []))
+    return [lights] if isinstance(lights, dict) else list(lights)
+
+
+def initial_settings(scene) -> Settings:
+    """The controls' starting state: the scene as loaded."""
+    cam = scene.camera
+    frame = orbit_frame(cam.up)
+    az, el = angles_of(cam.origin - cam.target, frame)
+    sun_az = sun_el = None
+    i = sun_index(scene)
+    if i is not None:
+        sun_az, sun_el = angles_of(-scene.lights[i].direction, SKY)
+    med = scene.medium
+    albedo = float(med.albedo[0]) if not med.albedo_per_voxel and np.ptp(med.albedo) == 0 else None
+    g = None if med.g_per_voxel else float(med.g)
+    return Settings(az, max(-89.0, min(89.0, el)), float(np.linalg.norm(cam.origin - cam.target)),
+                    sun_az, sun_el, 1.0, albedo, g, 1.0, float(scene.method.exposure))
+
+
+def scene_values(base, s: Settings, width: int, height: int) -> dict:
+    """The TOML values of the view: ``{"medium": {...}, "sun": {...} or None, "camera": {...}}``,
+    plain floats and lists, computed from the base scene (as loaded) and the settings."""
+    med = base.medium
+    medium = {"scale": _grey_or_rgb(np.asarray(med.scale) * s.density)}
+    if s.albedo is not None:
+        medium["albedo"] = s.albedo
+    if s.g is not None:
+        medium["g"] = s.g
+    sun = None
+    i = sun_index(base)
+    if i is not None and s.sun_azimuth is not None:
+        light = base.lights[i]
+        sun = {"direction": _floats(-direction_of(s.sun_azimuth, s.sun_elevation, SKY)),
+               "irradiance": _floats(light.irradiance * s.intensity)}
+    cam = base.camera
+    offset = s.camera_distance * direction_of(s.camera_azimuth, s.camera_elevation, orbit_frame(cam.up))
+    camera = {"origin": _floats(cam.target + offset), "target": _floats(cam.target),
+              "up": _floats(cam.up), "fov": float(cam.fov), "width": int(width), "height": int(height)}
+    return {"medium": medium, "sun": sun, "camera": camera}
+
+
+def _grey_or_rgb(v: np.ndarray):
+    v = _floats(v)
+    return v[0] if v[0] == v[1] == v[2] else v
+
+
+def build_medium(base_medium, values: dict):
+    """The view's Medium: the base medium (its density array shared, so solve's reuse sees the
+    same grid) with the scale/albedo/g of ``values["medium"]``."""
+    return replace(base_medium, **values["medium"])
+
+
+def build_scene(base, values: dict, medium, method):
+    """The view's Scene from the base scene, the scene values, a Medium and a Method."""
+    lights = list(base.lights)
+    if values["sun"] is not None:
+        i = sun_index(base)
+        old = lights[i]
+        lights[i] = DirectionalLight(values["sun"]["direction"], values["sun"]["irradiance"], a0=old.a0,
+                                     source=old.source)
+    c = values["camera"]
+    camera = Camera(c["origin"], c["target"], c["up"], c["fov"], c["width"], c["height"], source=base.camera.source)
+    return replace(base, medium=medium, lights=lights, camera=camera, method=method)
+
+
+def scene_toml(data: dict, base_dir: Path, values: dict, method) -> dict:
+    """The scene file of the view: the loaded TOML ``data`` with the view's values, every method
+    field written out, and file paths made absolute (so the file renders from any folder)."""
+    out = copy.deepcopy(data)
+    if "light" in out:                       # the loader also accepts [light]; write [[lights]]
+        out["lights"] = _light_list(out)
+        del out["light"]
+    medium = out.setdefault("medium", {})
+    _absolute(medium, "file", base_dir)
+    for key in ("albedo", "g"):
+        if isinstance(medium.get(key), dict):
+            _absolute(medium[key], "file", base_dir)
+    medium.update(values["medium"])
+    for entry in out.get("lights", []):
+        if isinstance(entry, dict):
+            _absolute(entry, "file", base_dir)
+    if values["sun"] is not None:
+        out["lights"][sun_entry(out)].update(values["sun"])
+    out["camera"] = dict(values["camera"])
+    out["method"] = {k: v for k, v in vars(method).items()}
+    return out
+
+
+def _absolute(table: dict, key: str, base_dir: Path):
+    if isinstance(table.get(key), str):
+        p = Path(table[key])
+        table[key] = str(p if p.is_absolute() else (base_dir / p).resolve())

@@ -1,0 +1,384 @@
+"""`popvol view` without a browser: message checking, what each change re-computes, the saved
+scene file reproducing the view, latest-wins scheduling and the server's guards (real server on
+127.0.0.1, real websocket client)."""
+import base64
+import io
+import json
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("starlette", reason="the viewer extra is not installed (pip install '.[viewer]')")
+pytest.importorskip("uvicorn", reason="the viewer extra is not installed (pip install '.[viewer]')")
+pytest.importorskip("tomli_w", reason="the viewer extra is not installed (pip install '.[viewer]')")
+ws_client = pytest.importorskip("websockets.sync.client", reason="websockets is not installed")
+
+import popvol  # noqa: E402
+from popvol.errors import PopvolError  # noqa: E402
+from popvol.viewer import settings as S  # noqa: E402
+from popvol.viewer.engine import DRAFT, FULL, Engine  # noqa: E402
+from popvol.viewer.server import running  # noqa: E402
+
+SMALL_SCENE = """
+[medium]
+type = "file"
+file = "../data/blob.npz"
+scale = 3.0
+albedo = 0.9
+g = 0.6
+
+[[lights]]
+type = "directional"
+direction = [-0.6, -0.7, 0.3]
+irradiance = [2.0, 1.9, 1.7]
+
+[background]
+radiance = [0.2, 0.3, 0.5]
+
+[camera]
+origin = [0.4, 0.5, 2.6]
+target = [0.0, 0.0, 0.0]
+width = 48
+height = 28
+
+[method]
+resolution = 24
+exposure = 0.5
+"""
+
+
+def write_small_scene(folder: Path) -> Path:
+    """A 20^3 blob in data/blob.npz and scenes/small.toml that reads it by a relative path."""
+    (folder / "data").mkdir(exist_ok=True)
+    (folder / "scenes").mkdir(exist_ok=True)
+    x = np.linspace(-1, 1, 20)
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    density = np.clip(1.2 - np.sqrt(X**2 + 1.5 * Y**2 + Z**2) * 1.4, 0, None).astype(np.float32)
+    np.savez(folder / "data" / "blob.npz", density=density, voxel_size=np.array([0.1]),
+             world_of_ijk_min=np.array([-0.95, -0.95, -0.95]))
+    path = folder / "scenes" / "small.toml"
+    path.write_text(SMALL_SCENE)
+    return path
+
+
+@pytest.fixture(scope="module")
+def scene_path(tmp_path_factory):
+    return write_small_scene(tmp_path_factory.mktemp("viewer"))
+
+
+@pytest.fixture(scope="module")
+def engine(scene_path):
+    return Engine(scene_path, resolution=24, draft_resolution=12)
+
+
+# -- messages ---------------------------------------------------------------------------------
+
+BAD_MESSAGES = [
+    ("{bad", "not valid JSON"),
+    ("[1, 2]", "must be a JSON object"),
+    ('{"type": "fly"}', "message type 'fly' is unknown"),
+    ('{"settings": {"g": 0.5}}', "message type None is unknown"),
+    ('{"type": "set"}', "non-empty object 'settings'"),
+    ('{"type": "set", "settings": {}}', "non-empty object 'settings'"),
+    ('{"type": "set", "settings": {"g": 0.5}, "extra": 1}', "unknown key(s) 'extra'"),
+    ('{"type": "set", "settings": {"colour": 1}}', "unknown setting 'colour'"),
+    ('{"type": "set", "settings": {"g": 1}}', "g = 1 is outside (-1, 1)"),
+    ('{"type": "set", "settings": {"g": -1.0}}', "g = -1.0 is outside (-1, 1)"),
+    ('{"type": "set", "settings": {"g": NaN}}', "NaN is not a number"),
+    ('{"type": "set", "settings": {"density": Infinity}}', "Infinity is not a number"),
+    ('{"type": "set", "settings": {"density": 1e999}}', "must be a finite number"),
+    ('{"type": "set", "settings": {"albedo": 1.5}}', "albedo = 1.5 is outside [0, 1]"),
+    ('{"type": "set", "settings": {"albedo": "0.5"}}', "must be a finite number"),
+    ('{"type": "set", "settings": {"intensity": true}}', "must be a finite number"),
+    ('{"type": "set", "settings": {"camera_elevation": 95}}', "is outside [-89, 89]"),
+    ('{"type": "set", "settings": {"camera_distance": 0}}', "camera_distance = 0 is outside"),
+    ('{"type": "save", "now": true}', "unknown key(s) 'now'"),
+]
+
+
+@pytest.mark.parametrize("text,expected", BAD_MESSAGES)
+def test_bad_messages_give_one_clear_line(text, expected):
+    with pytest.raises(PopvolError) as e:
+        S.parse_message(text, (0.1, 10.0), has_sun=True)
+    assert expected in str(e.value) and "\n" not in str(e.value)
+
+
+def test_good_messages_and_scenes_without_a_sun():
+    m = S.parse_message('{"type": "set", "settings": {"g": 0.5, "sun_azimuth": 30}}', (0.1, 10.0), True)
+    assert m.kind == "set" and m.changes == {"g": 0.5, "sun_azimuth": 30.0}
+    assert S.parse_message('{"type": "save"}', (0.1, 10.0), True).kind == "save"
+    with pytest.raises(PopvolError, match="no directional light"):
+        S.parse_message('{"type": "set", "settings": {"sun_azimuth": 30}}', (0.1, 10.0), has_sun=False)
+    with pytest.raises(PopvolError, match="binary"):
+        S.parse_message(b"\x00\x01", (0.1, 10.0), True)
+
+
+def test_angles_round_trip():
+    frame = S.orbit_frame((0.0, 1.0, 0.0))
+    for az, el in ((0, 0), (30, 45), (-120, -60), (179, 10)):
+        back = S.angles_of(S.direction_of(az, el, frame), frame)
+        assert np.allclose(back, (az, el), atol=1e-9)
+    # azimuth 0 is +z, 90 is +x, elevation 90 is +y
+    assert np.allclose(S.direction_of(0, 0, frame), [0, 0, 1])
+    assert np.allclose(S.direction_of(90, 0, frame), [1, 0, 0])
+    assert np.allclose(S.direction_of(0, 90, frame), [0, 1, 0])
+
+
+# -- the engine: what each change re-computes ---------------------------------------------------
+
+def test_initial_settings_reproduce_the_scene(engine, scene_path):
+    s = engine.initial
+    scene = engine.scene_for(s)
+    base = popvol.load_scene(scene_path)
+    assert np.allclose(scene.camera.origin, base.camera.origin, atol=1e-12)
+    assert np.allclose(scene.lights[0].direction, base.lights[0].direction, atol=1e-12)
+    assert (s.density, s.albedo, s.g, s.intensity, s.exposure) == (1.0, 0.9, 0.6, 1.0, 0.5)
+
+
+def test_camera_intensity_and_exposure_do_not_propagate(engine):
+    s0 = engine.initial
+    f0 = engine.frame(s0, FULL)
+    solves = engine.solves
+    moved = engine.frame(replace(s0, camera_azimuth=s0.camera_azimuth + 40, camera_distance=3.0), FULL)
+    assert engine.solves == solves and not moved.propagated and moved.seconds["propagate"] == 0.0
+    assert np.abs(moved.image - f0.image).mean() > 1e-3            # the view did change
+    # intensity: the same fields with twice the irradiance, as a fresh solve would give
+    s2 = replace(s0, intensity=2.0)
+    brighter = engine.frame(s2, FULL)
+    assert engine.solves == solves and not brighter.propagated
+    scene = engine.scene_for(s2)
+    fresh = popvol.render(scene, popvol.solve(scene))
+    np.testing.assert_allclose(brighter.image, fresh, rtol=1e-5, atol=1e-6)
+    engine.frame(replace(s0, exposure=2.0), FULL)
+    assert engine.solves == solves
+
+
+def test_light_and_medium_changes_propagate(engine):
+    s0 = engine.initial
+    f0 = engine.frame(s0, FULL)
+    for change in ({"sun_azimuth": s0.sun_azimuth + 50}, {"density": 3.0}, {"albedo": 0.5}, {"g": -0.3}):
+        solves = engine.solves
+        f = engine.frame(replace(s0, **change), FULL)
+        assert engine.solves == solves + 1 and f.propagated, change
+        assert np.abs(f.image - f0.image).mean() > 1e-3, change
+
+
+def test_drafts_are_smaller_and_use_the_full_solution_when_it_exists(engine):
+    s = replace(engine.initial, sun_azimuth=engine.initial.sun_azimuth - 70)
+    solves = engine.solves
+    d = engine.frame(s, DRAFT)                                   # no solution yet: a coarse one
+    assert d.propagated and d.resolution == 12 and engine.solves == solves + 1
+    assert (d.width, d.height) == (24, 14)
+    f = engine.frame(s, FULL)
+    assert f.propagated and f.resolution == 24 and (f.width, f.height) == (48, 28)
+    d2 = engine.frame(replace(s, camera_azimuth=s.camera_azimuth + 5), DRAFT)
+    assert not d2.propagated and d2.resolution == 24 and engine.solves == solves + 2
+
+
+def test_saved_toml_renders_the_view_exactly(engine, tmp_path, monkeypatch):
+    s = replace(engine.initial, camera_azimuth=35.0, camera_elevation=20.0, camera_distance=3.5,
+                sun_azimuth=-40.0, sun_elevation=25.0, density=1.7, albedo=0.8, g=0.3, intensity=1.5,
+                exposure=1.0)
+    view = engine.frame(s, FULL)
+    out = tmp_path / "out"
+    out.mkdir()
+    png, toml = engine.save(s, out)
+    assert (png.name, toml.name) == ("popvol-view-001.png", "popvol-view-001.toml")
+    assert engine.save(s, out)[1].name == "popvol-view-002.toml"         # never overwrites
+    monkeypatch.chdir(tmp_path)                                          # somewhere else entirely
+    scene = popvol.load_scene(toml)
+    assert Path(scene.source) == toml
+    image = popvol.render(scene, popvol.solve(scene))
+    np.testing.assert_allclose(image, view.image, rtol=1e-5, atol=1e-6)
+    from PIL import Image
+    from popvol.io.images import tonemap
+    saved = np.asarray(Image.open(png))
+    assert np.array_equal(saved, tonemap(image, scene.method.exposure))
+    assert np.array_equal(saved, np.asarray(Image.open(io.BytesIO(view.png))))
+    # and through the command line
+    r = subprocess.run([sys.executable, "-m", "popvol.cli", "render", str(toml), "-o", "again.png"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "again.png")), saved)
+
+
+def test_saved_toml_keeps_the_scene_and_makes_paths_absolute(engine, tmp_path):
+    import tomllib
+    engine.save(engine.initial, tmp_path)
+    data = tomllib.loads((tmp_path / "popvol-view-001.toml").read_text())
+    assert Path(data["medium"]["file"]).is_absolute() and Path(data["medium"]["file"]).is_file()
+    assert data["background"]["radiance"] == [0.2, 0.3, 0.5]
+    assert data["method"]["resolution"] == 24 and data["method"]["exposure"] == 0.5
+    with pytest.raises(PopvolError, match="does not exist"):
+        engine.save(engine.initial, tmp_path / "missing")
+
+
+def test_view_resolution_scales_the_method():
+    from popvol.scene import Method
+    m = Method(resolution=128, diffusion_resolution=64, environment_resolution=64)
+    from popvol.viewer.engine import view_method
+    v = view_method(m, 64)
+    assert (v.resolution, v.diffusion_resolution, v.environment_resolution) == (64, 32, 32)
+    assert view_method(m, 256).resolution == 128                  # never finer than the scene
+    assert view_method(Method(resolution=32, diffusion_resolution=0), 16).diffusion_resolution == 0
+
+
+# -- the server -----------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def server(engine, tmp_path_factory):
+    with running(engine, tmp_path_factory.mktemp("saves"), refine_delay=0.2) as url:
+        yield url
+
+
+def connect(url, **kw):
+    kw.setdefault("origin", url.rstrip("/"))
+    return ws_client.connect(url.replace("http", "ws", 1) + "ws", **kw)
+
+
+def receive(ws, kind, timeout=60, level=None):
+    """The next message of type ``kind`` (and ``level``), skipping others."""
+    end = time.monotonic() + timeout
+    while True:
+        m = json.loads(ws.recv(timeout=max(0.01, end - time.monotonic())))
+        if m["type"] == kind and (level is None or m.get("level") == level):
+            return m
+
+
+def test_burst_of_camera_messages_renders_the_latest_only(server, engine):
+    with connect(server) as ws:
+        init = receive(ws, "init")
+        first = receive(ws, "frame")
+        assert first["level"] == FULL and first["version"] == 0
+        renders, solves = engine.renders, engine.solves
+        az0 = init["settings"]["camera_azimuth"]
+        for i in range(20):
+            ws.send(json.dumps({"type": "set", "settings": {"camera_azimuth": az0 + i + 1}}))
+        frames = []
+        while True:
+            m = receive(ws, "frame")
+            frames.append(m)
+            if m["level"] == FULL:
+                break
+        assert engine.renders - renders == len(frames) <= 6          # far fewer than 20
+        assert engine.solves == solves                               # camera only: no propagation
+        last = frames[-1]
+        assert last["version"] == 20 and last["settings"]["camera_azimuth"] == az0 + 20
+        assert all(f["level"] == DRAFT for f in frames[:-1])
+        assert [f["version"] for f in frames] == sorted(f["version"] for f in frames)
+        png = base64.b64decode(last["png"])
+        assert png[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_malformed_messages_get_an_error_and_the_server_goes_on(server):
+    with connect(server) as ws:
+        receive(ws, "frame")
+        for text, expected in BAD_MESSAGES[:3] + BAD_MESSAGES[8:11]:
+            ws.send(text)
+            assert expected in receive(ws, "error")["message"]
+        ws.send(b"\x00binary")
+        assert "binary" in receive(ws, "error")["message"]
+        ws.send(json.dumps({"type": "set", "settings": {"g": 0.2}}))
+        f = receive(ws, "frame", level=FULL)
+        assert f["settings"]["g"] == 0.2 and f["propagated"]
+
+
+def test_save_over_the_websocket(server, engine):
+    with connect(server) as ws:
+        receive(ws, "frame")
+        ws.send(json.dumps({"type": "set", "settings": {"density": 2.0}}))
+        ws.send(json.dumps({"type": "save"}))
+        saved = receive(ws, "saved")
+        scene = popvol.load_scene(saved["toml"])
+        assert scene.medium.scale[0] == pytest.approx(6.0)
+        assert Path(saved["png"]).is_file()
+
+
+def test_websocket_from_another_site_is_refused(server):
+    from websockets.exceptions import InvalidStatus
+    with pytest.raises(InvalidStatus):
+        with connect(server, origin="http://evil.example"):
+            pass
+
+
+def raw_get(url: str, target: str, host: str | None = None) -> tuple[int, bytes]:
+    """Send one HTTP/1.1 GET with ``target`` exactly as written (no client normalises it)."""
+    hostport = url.split("//")[1].rstrip("/")
+    h, p = hostport.rsplit(":", 1)
+    with socket.create_connection((h, int(p)), timeout=10) as s:
+        s.sendall(f"GET {target} HTTP/1.1\r\nHost: {host or hostport}\r\nConnection: close\r\n\r\n".encode())
+        data = b""
+        while chunk := s.recv(65536):
+            data += chunk
+    head, _, body = data.partition(b"\r\n\r\n")
+    return int(head.split()[1]), body
+
+
+TRAVERSALS = ["/static/../server.py", "/static/%2e%2e/server.py", "/static/..%2fserver.py",
+              "/static/%2e%2e%2fserver.py", "/static/..%5cserver.py", "/static/%2E%2E/%2E%2E/cli.py",
+              "/static/..%252fserver.py", "/static/....//server.py", "/static/.%2e/server.py",
+              "/static//etc/passwd", "/static/%2fetc%2fpasswd", "/static/../../popvol/viewer/server.py",
+              "/static/static/../../server.py", "/../server.py", "/%2e%2e/server.py"]
+
+
+@pytest.mark.parametrize("target", TRAVERSALS)
+def test_static_files_cannot_escape_their_folder(server, target):
+    status, body = raw_get(server, target)
+    assert status in (400, 404), (target, status)
+    assert b"create_app" not in body and b"root:" not in body and b"import click" not in body
+
+
+def test_page_and_static_files_are_served(server):
+    status, body = raw_get(server, "/")
+    assert status == 200 and b"popvol view" in body and b"/static/viewer.js" in body
+    status, body = raw_get(server, "/static/viewer.js")
+    assert status == 200 and b"WebSocket" in body
+    status, _ = raw_get(server, "/", host="evil.example")              # DNS rebinding guard
+    assert status == 400
+
+
+# -- the command line -----------------------------------------------------------------------------
+
+def popvol_cli(*args, **kw):
+    return subprocess.run([sys.executable, "-m", "popvol.cli", *args], capture_output=True, text=True, **kw)
+
+
+@pytest.mark.parametrize("args,expected", [
+    (["missing.toml"], "missing.toml: scene file not found"),
+    (["--port", "70000"], "--port 70000 must be an integer in [0, 65535]"),
+    (["--save-dir", "no/such/folder"], "--save-dir no/such/folder: folder does not exist"),
+    (["--resolution", "1"], "--resolution = 1 must be an integer in [2, 4096]"),
+])
+def test_view_command_bad_input_is_one_line(args, expected, tmp_path):
+    r = popvol_cli("view", "--no-browser", *args, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"popvol: error: {expected}"
+
+
+def test_view_command_serves_the_page(scene_path, tmp_path):
+    """`popvol view --no-browser --port 0` warms up, prints the address, serves the page."""
+    p = subprocess.Popen([sys.executable, "-m", "popvol.cli", "view", str(scene_path), "--no-browser",
+                          "--port", "0", "--resolution", "16", "--save-dir", str(tmp_path)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = None
+        for line in p.stdout:
+            if "open http://127.0.0.1:" in line:
+                url = line.split("open ")[1].split()[0]
+                break
+        assert url, p.stderr.read()
+        status, body = raw_get(url, "/")
+        assert status == 200 and b"popvol view" in body
+        with connect(url) as ws:
+            init = receive(ws, "init")
+            assert init["resolution"] == 16 and init["has_sun"]
+            assert receive(ws, "frame")["level"] == FULL
+    finally:
+        p.terminate()
+        p.wait(timeout=10)
