@@ -5,7 +5,9 @@
 - supplement_fig1.png: f_hg and 2 pi F_hg for g = 0, 0.5, 0.9 (supplement Fig. 1);
 - demo.png: the built-in demo scene at 480x270 (what `popvol render -o cloud.png` draws);
 - wdas_sun.png: examples/wdas_sun.toml at 480x270, if ../shared data is beside the checkout;
-- demo_sky.png: examples/demo_sky.toml (the demo cloud under a sun and a sky) at 480x270.
+- demo_sky.png: examples/demo_sky.toml (the demo cloud under a sun and a sky) at 480x270;
+- demo_envmap.png: examples/demo_envmap.toml (the demo cloud under an HDR map) at 480x270;
+- smoke1_point.png: examples/smoke1_point.toml (a point light inside smoke) at 240x320.
 """
 from pathlib import Path
 
@@ -21,10 +23,13 @@ def main():
     plot_supplement_figure(OUT / "supplement_fig1.png")
     print(OUT / "supplement_fig1.png")
     scenes = {"demo.png": None, "wdas_sun.png": ROOT / "examples" / "wdas_sun.toml",
-              "demo_sky.png": ROOT / "examples" / "demo_sky.toml"}
+              "demo_sky.png": ROOT / "examples" / "demo_sky.toml",
+              "demo_envmap.png": ROOT / "examples" / "demo_envmap.toml",
+              "smoke1_point.png": ROOT / "examples" / "smoke1_point.toml"}
     for name, path in scenes.items():
+        size = (240, 320) if name == "smoke1_point.png" else (480, 270)
         try:
-            scene = popvol.load_scene(path, width=480, height=270)
+            scene = popvol.load_scene(path, width=size[0], height=size[1])
         except popvol.PopvolError as e:
             print(f"skipped {name}: {e}")
             continue
