@@ -103,7 +103,9 @@ def websocket_figures(engine: Engine, n: int) -> dict:
                     break
             sun, full = [], []
             for i in range(max(3, n // 3)):
-                dt, m = round_trip({"sun_azimuth": s["sun_azimuth"] + 3.0 * (i + 1)}, DRAFT)
+                # directions not solved before (the engine keeps the last few solutions)
+                dt, m = round_trip({"sun_azimuth": s["sun_azimuth"] - 3.0 * (i + 1) - 0.5}, DRAFT)
+                assert m["propagated"]
                 sun.append(dt)
                 t = time.perf_counter()
                 while True:                                         # the refinement follows by itself

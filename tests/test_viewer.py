@@ -208,6 +208,53 @@ def test_saved_toml_renders_the_view_exactly(engine, tmp_path, monkeypatch):
     assert np.array_equal(np.asarray(Image.open(tmp_path / "again.png")), saved)
 
 
+SKY_AND_SUN = """
+[[lights]]
+type = "directional"
+direction = [-0.6, -0.7, 0.3]
+irradiance = 2.0
+
+[[lights]]
+type = "sky"
+lights = 3
+"""
+
+POINT_ONLY = """
+[[lights]]
+type = "point"
+position = [0.2, 0.1, 0.0]
+intensity = [3.0, 2.0, 1.0]
+"""
+
+
+@pytest.mark.parametrize("lights", [SKY_AND_SUN, POINT_ONLY], ids=["sun+sky", "point"])
+def test_saved_toml_renders_exactly_with_other_lights(lights, tmp_path):
+    """An environment's K lights are kept (the sun alone moves); a point light is scaled by
+    the intensity control and has no sun to move."""
+    path = write_small_scene(tmp_path)
+    text = SMALL_SCENE.split("[[lights]]")[0] + lights + "\n[camera]" + SMALL_SCENE.split("[camera]")[1]
+    if "sky" in lights:
+        text = text.replace("[background]\nradiance = [0.2, 0.3, 0.5]\n", "")
+    path.write_text(text)
+    e = Engine(path, resolution=16, draft_resolution=8)
+    n_lights = len(e.base.lights)
+    assert e.has_key and e.has_sun == ("sky" in lights)
+    s = replace(e.initial, intensity=2.5, camera_azimuth=-30.0)
+    if e.has_sun:
+        s = replace(s, sun_azimuth=10.0, sun_elevation=60.0)
+    else:
+        with pytest.raises(PopvolError, match="no directional light"):
+            S.parse_message('{"type": "set", "settings": {"sun_azimuth": 3}}', e.distance_range, e.has_sun)
+    view = e.frame(s, FULL)
+    png, toml = e.save(s, tmp_path)
+    scene = popvol.load_scene(toml)
+    assert len(scene.lights) == n_lights
+    key = scene.lights[0]
+    power = key.irradiance if e.has_sun else key.intensity
+    assert np.allclose(power, e.base.lights[0].power * 2.5)
+    np.testing.assert_allclose(popvol.render(scene, popvol.solve(scene)), view.image, rtol=1e-5, atol=1e-6)
+
+
 def test_saved_toml_keeps_the_scene_and_makes_paths_absolute(engine, tmp_path):
     import tomllib
     engine.save(engine.initial, tmp_path)

@@ -1,7 +1,7 @@
 """The viewer's renderer: turns settings into frames, propagating only when it must.
 
 - A camera or exposure change renders with the solution it has (no propagation).
-- An intensity change replaces the solution's irradiance (fields are per unit irradiance).
+- An intensity change replaces the solution's irradiance (fields are per unit power).
 - A sun or medium change propagates again; ``popvol.solve(reuse=...)`` (where available) copies
   the domains of lights that did not change from the previous solution.
 
@@ -103,6 +103,7 @@ class Engine:
         d0 = self.initial.camera_distance
         self.distance_range = (d0 / 100.0, d0 * 100.0)
         self.has_sun = S.sun_index(self.base) is not None
+        self.has_key = S.key_index(self.base) is not None
         self._media = OrderedDict()         # medium values -> Medium (the last few)
         self._solutions = OrderedDict()     # (propagation key, resolution) -> Solution
         self._last = {}                     # resolution -> the last solution solved at it (reuse)
@@ -165,8 +166,8 @@ class Engine:
 
     @staticmethod
     def _with_irradiance(solution, scene):
-        irradiance = np.array([light.irradiance for light in scene.lights])
-        return replace(solution, irradiance=irradiance)
+        power = np.array([light.power for light in scene.lights]).reshape(-1, 3)
+        return replace(solution, irradiance=power)
 
     # -- saving --------------------------------------------------------------------------------
 
@@ -174,7 +175,8 @@ class Engine:
         """The scene file (as a dict) that ``popvol render`` turns into the full view."""
         w, h = self.size[FULL]
         values = S.scene_values(self.base, settings, w, h)
-        return S.scene_toml(self.data, self.base_dir, values, replace(self.method, exposure=settings.exposure))
+        return S.scene_toml(self.data, self.base_dir, values, replace(self.method, exposure=settings.exposure),
+                            self.base)
 
     def save(self, settings: S.Settings, folder) -> tuple[Path, Path]:
         """Write the full view as PNG and its scene as TOML in ``folder`` under the first free

@@ -80,7 +80,7 @@ class Session:
     async def handle(self, text):
         """Check one message and update the slot (never waits for a render)."""
         try:
-            m = S.parse_message(text, self.engine.distance_range, self.engine.has_sun)
+            m = S.parse_message(text, self.engine.distance_range, self.engine.has_sun, self.engine.has_key)
         except PopvolError as e:
             await self.send_error(str(e))
             return
@@ -141,7 +141,7 @@ def init_message(engine: Engine) -> dict:
     ranges = {k: [lo, hi] for k, (lo, hi, _) in S.RANGES.items()}
     ranges["camera_distance"] = list(engine.distance_range)
     return {"type": "init", "scene": engine.base.source, "settings": engine.initial.as_dict(),
-            "ranges": ranges, "has_sun": engine.has_sun,
+            "ranges": ranges, "has_sun": engine.has_sun, "has_key": engine.has_key,
             "size": list(engine.size[FULL]), "draft_size": list(engine.size[DRAFT]),
             "resolution": engine.method.resolution, "draft_resolution": engine.draft_method.resolution,
             "camera_frame": S.orbit_frame(engine.base.camera.up).tolist()}

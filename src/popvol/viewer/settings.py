@@ -25,7 +25,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import PopvolError
-from ..lights import DirectionalLight
+from ..lights import DirectionalLight, PointLight
 
 #: Allowed range of every setting the page may send: (low, high, open interval?).
 #: ``camera_distance`` is checked against the scene's own distance (see ``distance_range``).
@@ -50,7 +50,8 @@ PROPAGATION_KEYS = ("sun_azimuth", "sun_elevation", "density", "albedo", "g")
 class Settings:
     """The state of the viewer's controls; all plain floats.
 
-    density and intensity multiply the scene's medium scale and sun irradiance; albedo and g
+    density multiplies the scene's medium scale; intensity multiplies the key light's power
+    (the sun's irradiance, or without a sun the first point light's intensity); albedo and g
     replace the medium's (None: keep the scene's own, e.g. an RGB albedo or a per-voxel g);
     exposure is the PNG exposure in stops. sun_* are None when the scene has no sun.
     """
@@ -86,11 +87,12 @@ class Message:
     changes: dict
 
 
-def parse_message(text, distance_range: tuple[float, float], has_sun: bool) -> Message:
+def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_key: bool = True) -> Message:
     """Check one websocket message from the page; raise a one-line PopvolError if it is bad.
 
     Accepted: ``{"type": "set", "settings": {name: number, ...}}`` (names and ranges in
-    RANGES) and ``{"type": "save"}``.
+    RANGES) and ``{"type": "save"}``. has_sun / has_key: whether the scene has a sun to move
+    and a light whose intensity the page may change.
     """
     if not isinstance(text, str):
         raise PopvolError("messages must be JSON text, got binary data")
@@ -116,6 +118,8 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool) -> M
             raise PopvolError(f"unknown setting {name!r} (known: {', '.join(RANGES)})")
         if name.startswith("sun_") and not has_sun:
             raise PopvolError(f"setting {name!r}: this scene has no directional light to move")
+        if name == "intensity" and not has_key:
+            raise PopvolError("setting 'intensity': this scene has no sun or point light (only an environment)")
         lo, hi, open_ = RANGES[name]
         if name == "camera_distance":
             lo, hi = distance_range
@@ -188,10 +192,20 @@ def sun_index(scene) -> int | None:
     return None
 
 
-def sun_entry(data: dict) -> int | None:
+def key_index(scene) -> int | None:
+    """Index in scene.lights of the light the intensity control scales: the sun, or else the
+    first point light (None if there is neither)."""
+    i = sun_index(scene)
+    if i is None:
+        i = next((j for j, light in enumerate(scene.lights) if isinstance(light, PointLight)), None)
+    return i
+
+
+def key_entry(data: dict, scene) -> int | None:
     """Index in the TOML's [[lights]] list of that same light (None if there is none)."""
+    kind = "directional" if sun_index(scene) is not None else "point"
     for i, entry in enumerate(_light_list(data)):
-        if isinstance(entry, dict) and entry.get("type", "directional") == "directional":
+        if isinstance(entry, dict) and entry.get("type", "directional") == kind:
             return i
     return None
 
@@ -218,25 +232,29 @@ def initial_settings(scene) -> Settings:
 
 
 def scene_values(base, s: Settings, width: int, height: int) -> dict:
-    """The TOML values of the view: ``{"medium": {...}, "sun": {...} or None, "camera": {...}}``,
-    plain floats and lists, computed from the base scene (as loaded) and the settings."""
+    """The TOML values of the view: ``{"medium": {...}, "key": {...} or None, "camera": {...}}``,
+    plain floats and lists, computed from the base scene (as loaded) and the settings. "key"
+    holds the key light's new direction and irradiance (a sun) or intensity (a point light)."""
     med = base.medium
     medium = {"scale": _grey_or_rgb(np.asarray(med.scale) * s.density)}
     if s.albedo is not None:
         medium["albedo"] = s.albedo
     if s.g is not None:
         medium["g"] = s.g
-    sun = None
-    i = sun_index(base)
-    if i is not None and s.sun_azimuth is not None:
+    key = None
+    i = key_index(base)
+    if i is not None:
         light = base.lights[i]
-        sun = {"direction": _floats(-direction_of(s.sun_azimuth, s.sun_elevation, SKY)),
-               "irradiance": _floats(light.irradiance * s.intensity)}
+        if isinstance(light, DirectionalLight):
+            key = {"direction": _floats(-direction_of(s.sun_azimuth, s.sun_elevation, SKY)),
+                   "irradiance": _floats(light.irradiance * s.intensity)}
+        else:
+            key = {"intensity": _floats(light.intensity * s.intensity)}
     cam = base.camera
     offset = s.camera_distance * direction_of(s.camera_azimuth, s.camera_elevation, orbit_frame(cam.up))
     camera = {"origin": _floats(cam.target + offset), "target": _floats(cam.target),
               "up": _floats(cam.up), "fov": float(cam.fov), "width": int(width), "height": int(height)}
-    return {"medium": medium, "sun": sun, "camera": camera}
+    return {"medium": medium, "key": key, "camera": camera}
 
 
 def _grey_or_rgb(v: np.ndarray):
@@ -253,17 +271,20 @@ def build_medium(base_medium, values: dict):
 def build_scene(base, values: dict, medium, method):
     """The view's Scene from the base scene, the scene values, a Medium and a Method."""
     lights = list(base.lights)
-    if values["sun"] is not None:
-        i = sun_index(base)
+    key = values["key"]
+    if key is not None:
+        i = key_index(base)
         old = lights[i]
-        lights[i] = DirectionalLight(values["sun"]["direction"], values["sun"]["irradiance"], a0=old.a0,
-                                     source=old.source)
+        if isinstance(old, DirectionalLight):
+            lights[i] = DirectionalLight(key["direction"], key["irradiance"], a0=old.a0, source=old.source)
+        else:
+            lights[i] = replace(old, intensity=key["intensity"])
     c = values["camera"]
     camera = Camera(c["origin"], c["target"], c["up"], c["fov"], c["width"], c["height"], source=base.camera.source)
     return replace(base, medium=medium, lights=lights, camera=camera, method=method)
 
 
-def scene_toml(data: dict, base_dir: Path, values: dict, method) -> dict:
+def scene_toml(data: dict, base_dir: Path, values: dict, method, base) -> dict:
     """The scene file of the view: the loaded TOML ``data`` with the view's values, every method
     field written out, and file paths made absolute (so the file renders from any folder)."""
     out = copy.deepcopy(data)
@@ -279,8 +300,8 @@ def scene_toml(data: dict, base_dir: Path, values: dict, method) -> dict:
     for entry in out.get("lights", []):
         if isinstance(entry, dict):
             _absolute(entry, "file", base_dir)
-    if values["sun"] is not None:
-        out["lights"][sun_entry(out)].update(values["sun"])
+    if values["key"] is not None:
+        out["lights"][key_entry(out, base)].update(values["key"])
     out["camera"] = dict(values["camera"])
     out["method"] = {k: v for k, v in vars(method).items()}
     return out

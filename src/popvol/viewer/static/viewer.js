@@ -59,9 +59,10 @@ function init(msg) {
   $("view").width = msg.size[0];
   $("view").height = msg.size[1];
   if (!msg.has_sun) {
-    for (const id of ["sun_azimuth", "sun_elevation", "intensity"]) $(id).disabled = true;
-    $("sun-controls").title = "this scene has no directional light";
+    for (const id of ["sun_azimuth", "sun_elevation"]) $(id).disabled = true;
+    $("sun-controls").title = "this scene has no directional light (intensity scales its point light)";
   }
+  if (!msg.has_key) $("intensity").disabled = true;
   syncControls();
 }
 
