@@ -4,6 +4,7 @@ scene file reproducing the view, latest-wins scheduling and the server's guards 
 import base64
 import io
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -355,13 +356,16 @@ def test_websocket_from_another_site_is_refused(server):
 
 
 def raw_get(url: str, target: str, host: str | None = None) -> tuple[int, bytes]:
-    """Send one HTTP/1.1 GET with ``target`` exactly as written (no client normalises it)."""
+    """Send one HTTP/1.1 GET with ``target`` exactly as written (no client normalises it; it
+    may carry its own headers after " HTTP/1.1"); returns (status, body)."""
     hostport = url.split("//")[1].rstrip("/")
     h, p = hostport.rsplit(":", 1)
     with socket.create_connection((h, int(p)), timeout=10) as s:
-        s.sendall(f"GET {target} HTTP/1.1\r\nHost: {host or hostport}\r\nConnection: close\r\n\r\n".encode())
+        if " HTTP/1.1\r\n" not in target:
+            target += " HTTP/1.1\r\nConnection: close"
+        s.sendall(f"GET {target}\r\nHost: {host or hostport}\r\n\r\n".encode())
         data = b""
-        while chunk := s.recv(65536):
+        while (chunk := s.recv(65536)) and not data.startswith(b"HTTP/1.1 101"):
             data += chunk
     head, _, body = data.partition(b"\r\n\r\n")
     return int(head.split()[1]), body
@@ -388,6 +392,28 @@ def test_page_and_static_files_are_served(server):
     assert status == 200 and b"WebSocket" in body
     status, _ = raw_get(server, "/", host="evil.example")              # DNS rebinding guard
     assert status == 400
+    status, _ = raw_get(server, "/", host="localhost:1234")
+    assert status == 200
+    upgrade = "/ws HTTP/1.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n" \
+              "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\nX-Pad: 1"
+    assert raw_get(server, upgrade, host="localhost:1234")[0] == 101      # the websocket too
+    assert raw_get(server, upgrade, host="evil.example")[0] == 403
+
+
+def test_ipv6_loopback(engine, tmp_path):
+    try:
+        socket.create_server(("::1", 0), family=socket.AF_INET6).close()
+    except OSError:
+        pytest.skip("no IPv6 loopback on this machine")
+    with running(engine, tmp_path, host="::1") as url:
+        assert url.startswith("http://[::1]:")
+        port = url.rstrip("/").rsplit(":", 1)[1]
+        with socket.create_connection(("::1", int(port)), timeout=10) as s:
+            s.sendall(f"GET / HTTP/1.1\r\nHost: [::1]:{port}\r\nConnection: close\r\n\r\n".encode())
+            reply = b""
+            while chunk := s.recv(65536):
+                reply += chunk
+        assert reply.startswith(b"HTTP/1.1 200") and b"popvol view" in reply
 
 
 # -- the command line -----------------------------------------------------------------------------
@@ -409,7 +435,8 @@ def test_view_command_bad_input_is_one_line(args, expected, tmp_path):
 
 
 def test_view_command_serves_the_page(scene_path, tmp_path):
-    """`popvol view --no-browser --port 0` warms up, prints the address, serves the page."""
+    """`popvol view --no-browser --port 0` warms up, prints the address, serves the page, and
+    stops cleanly on Ctrl+C."""
     p = subprocess.Popen([sys.executable, "-m", "popvol.cli", "view", str(scene_path), "--no-browser",
                           "--port", "0", "--resolution", "16", "--save-dir", str(tmp_path)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -426,6 +453,10 @@ def test_view_command_serves_the_page(scene_path, tmp_path):
             init = receive(ws, "init")
             assert init["resolution"] == 16 and init["has_sun"]
             assert receive(ws, "frame")["level"] == FULL
+            p.send_signal(signal.SIGINT)                         # Ctrl+C, with a page open
+            out, err = p.communicate(timeout=30)
+        assert p.returncode == 0 and "popvol view: stopped" in out and err == ""
     finally:
-        p.terminate()
-        p.wait(timeout=10)
+        if p.poll() is None:
+            p.kill()
+            p.wait()

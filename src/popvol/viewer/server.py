@@ -155,17 +155,40 @@ def frame_message(frame, version: int, engine: Engine) -> dict:
             "settings": frame.settings.as_dict(), "png": base64.b64encode(frame.png).decode("ascii")}
 
 
+class HostGuard:
+    """ASGI middleware: refuses requests and websockets whose Host header names none of
+    ``names`` (any port). A page elsewhere that reaches 127.0.0.1 through DNS rebinding sends
+    its own name. (Starlette's TrustedHostMiddleware cannot parse "[::1]:port".)"""
+
+    def __init__(self, app, names):
+        self.app, self.names = app, set(names)
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] in ("http", "websocket"):
+            from starlette.datastructures import Headers
+            from starlette.responses import PlainTextResponse
+            from starlette.websockets import WebSocketClose
+            host = Headers(scope=scope).get("host", "")
+            name = host if host.endswith("]") else host.rsplit(":", 1)[0]
+            if name not in self.names:
+                refuse = (PlainTextResponse("Invalid host header", status_code=400) if scope["type"] == "http"
+                          else WebSocketClose(code=1008))
+                await refuse(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
 def create_app(engine: Engine, save_dir: Path, worker: ThreadPoolExecutor | None = None,
                allowed_hosts: list[str] | None = None, refine_delay: float = REFINE_DELAY):
     """The Starlette app: "/" the page, "/static/..." its files, "/ws" the websocket.
 
-    allowed_hosts: Host header values accepted (DNS-rebinding guard); None accepts any.
+    allowed_hosts: host names accepted in the Host header, any port, IPv6 in brackets
+        (DNS-rebinding guard); None accepts any.
     Websockets whose Origin is another site are refused (a web page elsewhere cannot drive
     the viewer).
     """
     from starlette.applications import Starlette
     from starlette.middleware import Middleware
-    from starlette.middleware.trustedhost import TrustedHostMiddleware
     from starlette.responses import FileResponse
     from starlette.routing import Mount, Route, WebSocketRoute
     from starlette.staticfiles import StaticFiles
@@ -183,7 +206,7 @@ def create_app(engine: Engine, save_dir: Path, worker: ThreadPoolExecutor | None
         await ws.accept()
         await Session(ws, engine, worker, Path(save_dir), refine_delay).run()
 
-    middleware = [Middleware(TrustedHostMiddleware, allowed_hosts=allowed_hosts)] if allowed_hosts else []
+    middleware = [Middleware(HostGuard, names=allowed_hosts)] if allowed_hosts else []
     app = Starlette(routes=[Route("/", index), WebSocketRoute("/ws", websocket),
                             Mount("/static", StaticFiles(directory=STATIC, follow_symlink=False), name="static")],
                     middleware=middleware)
@@ -254,7 +277,11 @@ def serve(engine: Engine, host: str = "127.0.0.1", port: int = 8765, open_browse
     sys.stdout.flush()
     if open_browser:
         webbrowser.open(url)
-    make_server(engine, sock, save_dir).run(sockets=[sock])
+    try:
+        make_server(engine, sock, save_dir).run(sockets=[sock])
+    except KeyboardInterrupt:              # uvicorn re-raises Ctrl+C after shutting down
+        pass
+    echo("popvol view: stopped")
 
 
 @contextmanager
