@@ -130,7 +130,7 @@ def main(argv=None) -> int:
     if not Path(a.scene).is_file():
         print(f"bench_viewer: {a.scene} not found (the WDAS example needs ../shared/data/volumes)", file=sys.stderr)
         return 2
-    log = lambda s: print(s, file=sys.stderr, flush=True)   # noqa: E731
+    log = lambda s: print(s, file=sys.stderr, flush=True)
     n = a.repeats
     # full view 640x360 (drafts 320x180), and a full view of 320x180 itself
     big = Engine(a.scene, width=640, height=360, resolution=a.resolution, draft_resolution=a.draft_resolution)

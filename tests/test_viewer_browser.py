@@ -13,11 +13,11 @@ pytest.importorskip("starlette", reason="the viewer extra is not installed (pip 
 pytest.importorskip("uvicorn", reason="the viewer extra is not installed (pip install '.[viewer]')")
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install '.[test]')")
 
-import popvol  # noqa: E402
-from popvol.viewer.engine import Engine  # noqa: E402
-from popvol.viewer.server import running  # noqa: E402
+from test_viewer import write_small_scene
 
-from test_viewer import write_small_scene  # noqa: E402
+import popvol
+from popvol.viewer.engine import Engine
+from popvol.viewer.server import running
 
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -81,7 +81,10 @@ def changed_pixels(a: np.ndarray, b: np.ndarray) -> int:
 def drag(page, selector, start, end, steps=8):
     """Press at ``start`` (fractions of the element's box), move to ``end``, release."""
     box = page.locator(selector).bounding_box()
-    at = lambda f: (box["x"] + f[0] * box["width"], box["y"] + f[1] * box["height"])   # noqa: E731
+
+    def at(f):
+        return box["x"] + f[0] * box["width"], box["y"] + f[1] * box["height"]
+
     page.mouse.move(*at(start))
     page.mouse.down()
     for i in range(1, steps + 1):

@@ -104,7 +104,7 @@ class Session:
                 else:
                     try:
                         await asyncio.wait_for(self.wake.wait(), self.refine_delay)
-                    except asyncio.TimeoutError:
+                    except TimeoutError:
                         if refine.version == self.version:
                             self.slot = Request(refine.version, refine.settings, FULL)
                         refine = None
@@ -131,10 +131,11 @@ class Session:
             refine = req if req.level == DRAFT else None
 
     async def send_error(self, message: str):
+        from starlette.websockets import WebSocketDisconnect
         try:
             await self.ws.send_json({"type": "error", "message": message})
-        except Exception:                   # the page has gone; nothing to tell
-            pass
+        except (WebSocketDisconnect, RuntimeError, OSError):    # the page has gone: nobody to tell
+            log.debug("could not send an error to a closed page: %s", message)
 
 
 def init_message(engine: Engine) -> dict:
@@ -246,9 +247,8 @@ def listen(host: str, port: int) -> socket.socket:
 def make_server(engine: Engine, sock: socket.socket, save_dir, refine_delay: float = REFINE_DELAY):
     """A uvicorn Server for the app on the listening ``sock`` (not started)."""
     import uvicorn
-    host, port = sock.getsockname()[:2]
     hosts = None
-    if is_loopback(host):
+    if is_loopback(sock.getsockname()[0]):
         hosts = ["127.0.0.1", "localhost", "[::1]"]
     app = create_app(engine, Path(save_dir), allowed_hosts=hosts, refine_delay=refine_delay)
     config = uvicorn.Config(app, log_level="warning", ws_max_size=MAX_MESSAGE, lifespan="off")
