@@ -168,6 +168,10 @@ def test_light_and_medium_changes_propagate(engine):
         f = engine.frame(replace(s0, **change), FULL)
         assert engine.solves == solves + 1 and f.propagated, change
         assert np.abs(f.image - f0.image).mean() > 1e-3, change
+    solves = engine.solves                               # going back to recent settings is free
+    back = engine.frame(replace(s0, density=3.0), FULL)
+    assert engine.solves == solves and not back.propagated
+    assert len(engine._solutions) <= 4
 
 
 def test_drafts_are_smaller_and_use_the_full_solution_when_it_exists(engine):

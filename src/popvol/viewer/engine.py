@@ -32,6 +32,8 @@ from ..scene import DEMO_SCENE, load_scene
 from . import settings as S
 
 DRAFT, FULL = "draft", "full"
+MAX_SOLUTIONS = 4                  # solutions kept for returning to earlier settings ...
+MAX_CACHE_BYTES = 512 * 2**20      # ... as long as their fields fit in this many bytes
 _SOLVE_REUSES = "reuse" in inspect.signature(solve).parameters
 
 
@@ -160,7 +162,8 @@ class Engine:
         self.solves += 1
         self._last[key[1]] = sol
         self._solutions[key] = sol
-        while len(self._solutions) > 4:
+        while len(self._solutions) > 1 and (len(self._solutions) > MAX_SOLUTIONS or sum(
+                solution_bytes(x) for x in self._solutions.values()) > MAX_CACHE_BYTES):
             self._solutions.popitem(last=False)
         return sol, True, key[1]
 
@@ -202,6 +205,11 @@ class Engine:
             raise PopvolError(f"{toml}: cannot write ({e})") from None
         write_image(png, f.image, settings.exposure)
         return png, toml
+
+
+def solution_bytes(solution) -> int:
+    """Bytes of a solution's world-grid fields (phi, phia, phid, flux)."""
+    return sum(a.nbytes for a in (solution.phi, solution.phia, solution.phid, solution.flux))
 
 
 def encode_png(image: np.ndarray, exposure: float) -> bytes:
