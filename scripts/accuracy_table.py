@@ -1,6 +1,6 @@
 """Regenerate docs/ACCURACY.md: every method variant of popvol against Mitsuba 3 references.
 
-    python scripts/accuracy_table.py [--spp 4096] [--variant llvm_ad_rgb] [--quick]
+    python scripts/accuracy_table.py [--spp 4096] [--variant llvm_ad_rgb] [--quick] [--only a,b]
 
 For each scene of scenes/accuracy/ (skipped, with the reason, if its volume is not in ../shared):
 a converged reference is rendered once with `popvol.reference` (kept in build/accuracy/, reused
@@ -8,7 +8,8 @@ and extended on later runs: never edited by hand), then popvol renders the scene
 combination of rule (paper, moment), decay (paper, poisson), isotropic stage (walk, diffusion)
 at 64 and 128 cells with the sweep solver, and with the Jacobi solver at 64 cells. The table
 gives relMSE (epsilon 0.01), mean-brightness ratio, SSIM and popvol's time; figures show the
-default method and the best measured variant of each scene.
+default method and the best measured variant of each scene. ``--only`` re-runs the named scenes
+and keeps the other scenes' sections of the existing table.
 """
 from __future__ import annotations
 
@@ -28,22 +29,37 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes" / "accuracy"
 BUILD = ROOT / "build" / "accuracy"
 FIGURES = ROOT / "docs" / "figures" / "accuracy"
-ORDER = ["haze", "wdas_sun", "wdas_sun_sky", "wdas_backlit", "smoke1"]
+ORDER = ["haze", "wdas_sun", "wdas_sun_sky", "wdas_backlit", "smoke1", "smoke1_point", "demo_envmap"]
 SPP_SCALE = {"smoke1": 0.25}      # the dense smoke costs Mitsuba ~10x more per sample
 
 
 def variants(quick: bool, name: str = ""):
     res = (64,) if quick else (64, 128)
-    if name == "wdas_sun_sky":        # 9 domains per variant: the default rule and decay only
+    if name in ("wdas_sun_sky", "demo_envmap"):   # 9-13 domains a variant: default rule and decay
         for iso, n in itertools.product(("walk", "diffusion"), res):
             yield {"rule": "moment", "decay": "poisson", "isotropic": iso, "resolution": n, "solver": "sweep"}
         return
     for rule, decay, iso, n in itertools.product(("moment", "paper"), ("poisson", "paper"),
                                                   ("walk", "diffusion"), res):
         yield {"rule": rule, "decay": decay, "isotropic": iso, "resolution": n, "solver": "sweep"}
-    if not quick:
+    if not quick and name != "smoke1_point":       # point lights always sweep
         for rule, decay, iso in itertools.product(("moment", "paper"), ("poisson", "paper"), ("walk", "diffusion")):
             yield {"rule": rule, "decay": decay, "isotropic": iso, "resolution": 64, "solver": "jacobi"}
+
+
+def previous_sections() -> dict:
+    """The lines of each scene's section ("## name" up to the next) of the existing table."""
+    sections, name = {}, None
+    path = ROOT / "docs" / "ACCURACY.md"
+    for line in (path.read_text().splitlines() if path.exists() else []):
+        if line.startswith("## "):
+            name = line[3:].strip()
+            sections[name] = []
+        elif line.startswith("_Generated"):
+            name = None
+        if name is not None:
+            sections[name].append(line)
+    return sections
 
 
 def label(v):
@@ -55,7 +71,10 @@ def main():
     ap.add_argument("--spp", type=int, default=4096)
     ap.add_argument("--variant", default="llvm_ad_rgb")
     ap.add_argument("--quick", action="store_true", help="64 cells only, no Jacobi, 512 spp")
+    ap.add_argument("--only", default="", help="comma-separated scenes to re-run (others kept)")
     args = ap.parse_args()
+    only = [n for n in args.only.split(",") if n]
+    kept = previous_sections() if only else {}
     spp = 512 if args.quick else args.spp
     BUILD.mkdir(parents=True, exist_ok=True)
     FIGURES.mkdir(parents=True, exist_ok=True)
@@ -69,6 +88,9 @@ def main():
            f"`{default.rule} + {default.decay} + {default.isotropic}, {default.solver} {default.resolution}`.", ""]
     t_all = time.perf_counter()
     for name in ORDER:
+        if only and name not in only:
+            out += kept.get(name, [])
+            continue
         path = SCENES / f"{name}.toml"
         try:
             scene = popvol.load_scene(path)
@@ -125,7 +147,8 @@ def main():
                                       f"{name}: {label(r[0])} ({tag})")
             out.append(f"![{name} {tag}](figures/accuracy/{fig.name})")
         out.append("")
-    out.append(f"_Generated in {time.perf_counter() - t_all:.0f} s._")
+    redone = f" (this run: {', '.join(only)}; the other sections are kept from before)" if only else ""
+    out.append(f"_Generated in {time.perf_counter() - t_all:.0f} s{redone}._")
     (ROOT / "docs" / "ACCURACY.md").write_text("\n".join(out) + "\n")
     print(ROOT / "docs" / "ACCURACY.md")
 
