@@ -417,14 +417,16 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
     n_ch = med.n_channels
     check_memory(2 * n * n_ch * med.density.size * 4, f"{med.source}: medium", f"fields of {n} "
                  f"light(s) x {n_ch} channel(s) on a {'x'.join(map(str, med.shape))} grid")
-    phi = np.empty((n, n_ch) + med.shape, np.float32)
-    phia = np.empty_like(phi)
+    # zeros: the fields are written only where the renderer reads them (voxels_seen); calloc'd
+    # pages that are never written cost nothing
+    phi = np.zeros((n, n_ch) + med.shape, np.float32)
+    phia = np.zeros_like(phi)
     diffusion = scene.method.isotropic == "diffusion"
     if diffusion:
         check_memory(4 * n * n_ch * med.density.size * 4, f"{med.source}: medium",
                      f"diffusion fields of {n} light(s) x {n_ch} channel(s)")
-        phid = np.empty((n, n_ch) + med.shape, np.float32)
-        flux = np.empty((n, n_ch, 3) + med.shape, np.float32)
+        phid = np.zeros((n, n_ch) + med.shape, np.float32)
+        flux = np.zeros((n, n_ch, 3) + med.shape, np.float32)
     else:
         phid = np.zeros((0, n_ch, 1, 1, 1), np.float32)
         flux = np.zeros((0, n_ch, 3, 1, 1, 1), np.float32)
@@ -455,16 +457,16 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
             if point:
                 fields_to_world(ds, med, phi[i, ch], phia[i, ch], needed)
             else:
-                domain_to_world(ds.result.phi, d.frame, d.origin, d.h, med.origin, med.voxel_size, phi[i, ch], needed)
-                domain_to_world(ds.result.phia, d.frame, d.origin, d.h, med.origin, med.voxel_size, phia[i, ch], needed)
+                domain_to_world((ds.result.phi, ds.result.phia), d.frame, d.origin, d.h, med.origin,
+                                med.voxel_size, (phi[i, ch], phia[i, ch]), needed)
             if diffusion:
                 dr = ds.result.diffusion
                 d = ds.diffusion_domain or d
-                domain_to_world(dr.phi, d.frame, d.origin, dr.h, med.origin, med.voxel_size, phid[i, ch], needed)
-                for c in range(3):          # world component c of J = sum over domain axes
-                    Jc = np.tensordot(d.frame[:, c].astype(np.float32), dr.flux, axes=1)
-                    domain_to_world(np.ascontiguousarray(Jc, np.float32), d.frame, d.origin, dr.h,
-                                    med.origin, med.voxel_size, flux[i, ch, c], needed)
+                # world component c of J = sum over the domain axes a of frame[a, c] J_a
+                J = np.tensordot(d.frame.T.astype(np.float32), dr.flux, axes=1)
+                domain_to_world((dr.phi, J[0], J[1], J[2]), d.frame, d.origin, dr.h, med.origin,
+                                med.voxel_size, (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1], flux[i, ch, 2]),
+                                needed)
             t_fields += time.perf_counter() - t0
             t_res += ds.seconds_resample
             t_prop += ds.result.seconds

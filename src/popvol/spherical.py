@@ -165,9 +165,9 @@ def solve_point_light(medium: Medium, light: PointLight, method: Method, progres
 
 def fields_to_world(ds, medium: Medium, phi: np.ndarray, phia: np.ndarray, needed: np.ndarray):
     """The walk's fields of a point light's domain on the world grid, times r^2 (see the module
-    docstring), into phi, phia float32 (nx, ny, nz)."""
+    docstring), into phi, phia float32 (nx, ny, nz) (zero-filled; only ``needed`` voxels are
+    written)."""
     dom = ds.domain
     r2 = (dom.radii ** 2)[:, None, None].astype(np.float32)
-    for src, out in ((ds.result.phi, phi), (ds.result.phia, phia)):
-        KS.spherical_to_world(np.ascontiguousarray(src * r2), dom.centre, dom.frame, dom.params,
-                              dom.full, medium.origin, medium.voxel_size, out, needed)
+    KS.spherical_to_world((ds.result.phi * r2, ds.result.phia * r2), dom.centre, dom.frame, dom.params,
+                          dom.full, medium.origin, medium.voxel_size, (phi, phia), needed)

@@ -312,3 +312,47 @@ def sweep_spherical(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, rule, full, forward, flip, w_
         R[k, i, j] += e
         Ra[k, i, j] += ea
     return float(R.sum(dtype=np.float64))
+
+
+def domain_to_world(field, frame, origin, h, world_origin, voxel, needed):
+    """Twin of kernels.sampling.domain_to_world for one field: its trilinear value (clamped to
+    the edge) at the world voxel centres where ``needed``, 0 elsewhere."""
+    idx = np.indices(needed.shape).reshape(3, -1).T
+    q = (world_origin + idx * voxel - origin) @ np.asarray(frame).T / h - 0.5
+    q = np.clip(q, 0, np.asarray(field.shape) - 1)
+    return np.where(needed, trilinear(field, q).reshape(needed.shape), 0.0)
+
+
+def spherical_to_world(field, dom, world_origin, voxel, needed):
+    """Twin of kernels.spherical.spherical_to_world for one field of a SphericalDomain: the
+    world voxel centres' (r, theta, phi) as continuous cell indices, trilinear, clamped in r
+    and theta, periodic in phi on a full sphere; 0 where not ``needed``."""
+    idx = np.indices(needed.shape).reshape(3, -1).T
+    local = (world_origin + idx * voxel - dom.centre) @ dom.frame.T
+    r = np.linalg.norm(local, axis=1)
+    theta = np.arccos(np.clip(local[:, 2] / np.maximum(r, 1e-300), -1, 1))
+    phi = np.arctan2(local[:, 1], local[:, 0])
+    if dom.full:
+        phi = np.mod(phi, 2 * np.pi)
+    q = np.stack([(r - dom.r0) / dom.dr, (theta - dom.theta0) / dom.dtheta, (phi - dom.phi0) / dom.dphi], 1) - 0.5
+    n = np.asarray(field.shape)
+    q[:, :2] = np.clip(q[:, :2], 0, n[:2] - 1)
+    if dom.full:
+        j0 = np.floor(q[:, 2]).astype(int)
+        fj = q[:, 2] - j0
+        j0, j1 = j0 % n[2], (j0 + 1) % n[2]
+    else:
+        q2 = np.clip(q[:, 2], 0, n[2] - 1)
+        j0 = np.minimum(np.floor(q2).astype(int), max(n[2] - 2, 0))
+        fj = q2 - j0
+        j1 = np.minimum(j0 + 1, n[2] - 1)
+    k0 = np.minimum(np.floor(q[:, 0]).astype(int), max(n[0] - 2, 0))
+    i0 = np.minimum(np.floor(q[:, 1]).astype(int), max(n[1] - 2, 0))
+    fk, fi = q[:, 0] - k0, q[:, 1] - i0
+    k1, i1 = np.minimum(k0 + 1, n[0] - 1), np.minimum(i0 + 1, n[1] - 1)
+    out = np.zeros(len(q))
+    for kk, wk in ((k0, 1 - fk), (k1, fk)):
+        for ii, wi in ((i0, 1 - fi), (i1, fi)):
+            for jj, wj in ((j0, 1 - fj), (j1, fj)):
+                out += wk * wi * wj * field[kk, ii, jj]
+    return np.where(needed, out.reshape(needed.shape), 0.0)

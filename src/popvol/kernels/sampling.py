@@ -81,20 +81,28 @@ def resample(grid, inv_voxel, grid_origin, frame, dom_origin, h, shape, clamp, o
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def domain_to_world(field, frame, dom_origin, h, world_origin, voxel, out, needed):
-    """Sample a domain field (n_d, n_u, n_v) at the centres of world voxels ``out`` (nx, ny, nz)
-    where ``needed`` (bool, same shape) is set; 0 elsewhere."""
-    nx, ny, nz = out.shape
+def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, needed):
+    """Sample domain fields (a tuple of float32 (n_d, n_u, n_v) arrays) at the centres of the
+    world voxels where ``needed`` (bool (nx, ny, nz)) is set, into ``outs`` (a tuple of as many
+    (nx, ny, nz) arrays), trilinear and clamped to the edge; one set of weights serves all
+    fields. Voxels not needed are not written: allocate ``outs`` with zeros."""
+    nx, ny, nz = needed.shape
+    s = fields[0].shape
     for x in nb.prange(nx):
         for y in range(ny):
             for z in range(nz):
                 if not needed[x, y, z]:
-                    out[x, y, z] = 0.0
                     continue
                 px = world_origin[0] + x * voxel[0] - dom_origin[0]
                 py = world_origin[1] + y * voxel[1] - dom_origin[1]
                 pz = world_origin[2] + z * voxel[2] - dom_origin[2]
-                q0 = (px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5
-                q1 = (px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5
-                q2 = (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5
-                out[x, y, z] = trilinear_clamped(field, q0, q1, q2)
+                i0, i1, fx = corner_weights((px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5, s[0])
+                j0, j1, fy = corner_weights((px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5, s[1])
+                k0, k1, fz = corner_weights((px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5, s[2])
+                for m in range(len(fields)):
+                    f = fields[m]
+                    c00 = f[i0, j0, k0] * (1 - fz) + f[i0, j0, k1] * fz
+                    c01 = f[i0, j1, k0] * (1 - fz) + f[i0, j1, k1] * fz
+                    c10 = f[i1, j0, k0] * (1 - fz) + f[i1, j0, k1] * fz
+                    c11 = f[i1, j1, k0] * (1 - fz) + f[i1, j1, k1] * fz
+                    outs[m][x, y, z] = (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx

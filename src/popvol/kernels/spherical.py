@@ -86,17 +86,17 @@ def spherical_index(centre, frame, params, full, wx, wy, wz):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def spherical_to_world(field, centre, frame, params, full, world_origin, voxel, out, needed):
-    """Sample a spherical domain's field (n_r, n_theta, n_phi) at the centres of world voxels
-    ``out`` (nx, ny, nz) where ``needed`` is set (0 elsewhere): trilinear in (r, theta, phi)
+def spherical_to_world(fields, centre, frame, params, full, world_origin, voxel, outs, needed):
+    """Sample a spherical domain's fields (a tuple of (n_r, n_theta, n_phi) arrays) at the
+    centres of world voxels where ``needed`` is set, into ``outs`` (a tuple of (nx, ny, nz)
+    arrays, not written elsewhere: allocate them with zeros): trilinear in (r, theta, phi)
     index space, clamped to the edge cells, periodic in phi on a full sphere."""
-    nx, ny, nz = out.shape
-    n0, n1, n2 = field.shape
+    nx, ny, nz = needed.shape
+    n0, n1, n2 = fields[0].shape
     for x in nb.prange(nx):
         for y in range(ny):
             for z in range(nz):
                 if not needed[x, y, z]:
-                    out[x, y, z] = 0.0
                     continue
                 q0, q1, q2, _ = spherical_index(centre, frame, params, full,
                                                 world_origin[0] + x * voxel[0],
@@ -111,11 +111,13 @@ def spherical_to_world(field, centre, frame, params, full, world_origin, voxel, 
                     j1 = (j0 + 1) % n2
                 else:
                     j0, j1, fj = corner_weights(q2, n2)
-                c00 = field[k0, i0, j0] * (1 - fj) + field[k0, i0, j1] * fj
-                c01 = field[k0, i1, j0] * (1 - fj) + field[k0, i1, j1] * fj
-                c10 = field[k1, i0, j0] * (1 - fj) + field[k1, i0, j1] * fj
-                c11 = field[k1, i1, j0] * (1 - fj) + field[k1, i1, j1] * fj
-                out[x, y, z] = (c00 * (1 - fi) + c01 * fi) * (1 - fk) + (c10 * (1 - fi) + c11 * fi) * fk
+                for m in range(len(fields)):
+                    f = fields[m]
+                    c00 = f[k0, i0, j0] * (1 - fj) + f[k0, i0, j1] * fj
+                    c01 = f[k0, i1, j0] * (1 - fj) + f[k0, i1, j1] * fj
+                    c10 = f[k1, i0, j0] * (1 - fj) + f[k1, i0, j1] * fj
+                    c11 = f[k1, i1, j0] * (1 - fj) + f[k1, i1, j1] * fj
+                    outs[m][x, y, z] = (c00 * (1 - fi) + c01 * fi) * (1 - fk) + (c10 * (1 - fi) + c11 * fi) * fk
 
 
 @nb.njit(fastmath=True, cache=True)
