@@ -16,6 +16,7 @@ import functools
 import time
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from . import hg
@@ -221,8 +222,9 @@ def propagate(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, 
         tally_b = np.zeros((len(bands) - 1, 5))
         def one_sweep(it, w_min):
             # alternate +d / -d every sweep and the lateral order every second sweep
-            left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
-                           w_min, inv_area, phi, phia, bands, halo, tally_b, tally, eps, diffusive, Q)
+            with numba.parallel_chunksize(1):     # bands to threads one at a time (see K)
+                left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
+                               w_min, inv_area, phi, phia, bands, halo, tally_b, tally, eps, diffusive, Q)
             return left, tally_b[:, 4].sum()
         in_flight, it = sweep_until_converged(one_sweep, in_flight, target, cap, Th.size,
                                               budget.injected, progress)

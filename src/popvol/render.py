@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import time
 
+import numba
 import numpy as np
 
 from .errors import PopvolError
@@ -28,14 +29,16 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
                           else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
-    render_kernel(med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(), med.origin,
-                  med.voxel_size, lo, hi, solution.phi, solution.phia, solution.phid, solution.flux,
-                  np.ascontiguousarray(solution.directions, np.float64),
-                  np.ascontiguousarray(solution.irradiance, np.float64),
-                  np.ascontiguousarray(solution.positions, np.float64), solution.is_point,
-                  background_map(scene), cam.origin, cam.basis(),
-                  float(np.tan(np.radians(cam.fov) / 2)), cam.width, cam.height, step, m.spp,
-                  m.seed, jitter, out)
+    # rows go to threads one at a time: rows through the medium cost far more than the sky's
+    with numba.parallel_chunksize(1):
+        render_kernel(med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
+                      med.origin, med.voxel_size, lo, hi, solution.phi, solution.phia, solution.phid, solution.flux,
+                      np.ascontiguousarray(solution.directions, np.float64),
+                      np.ascontiguousarray(solution.irradiance, np.float64),
+                      np.ascontiguousarray(solution.positions, np.float64), solution.is_point,
+                      background_map(scene), cam.origin, cam.basis(),
+                      float(np.tan(np.radians(cam.fov) / 2)), cam.width, cam.height, step, m.spp,
+                      m.seed, jitter, out)
     if not np.all(np.isfinite(out)):
         raise PopvolError("internal error: the rendered image has non-finite pixels; please report it "
                           f"with the scene ({scene.source})")

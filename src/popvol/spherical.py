@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 
+import numba
 import numpy as np
 
 from .diffusion import solve_diffusion
@@ -103,13 +104,12 @@ def propagate_point(sigma_t, sigma_s, g, dom: SphericalDomain, method: Method, p
     inv_area = inverse_area(dom)
 
     def one_sweep(it, w_min):
-        tally_b[:] = 0.0
-        KS.sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, dom.full,
-                                 it % 2 == 0, it % 4 >= 2, np.float32(w_min), inv_area, phi, phia,
-                                 bands, halo, anti, tally_b, eps, diffusive, Q)
-        KS.deliver(R, Ra, bands, halo, anti)
+        with numba.parallel_chunksize(1):     # bands to threads one at a time
+            left = KS.sweep(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, dom.full, it % 2 == 0,
+                            it % 4 >= 2, np.float32(w_min), inv_area, phi, phia, bands, halo, anti,
+                            tally_b, eps, diffusive, Q)
         tally[:] += tally_b[:, :4].sum(axis=0)
-        return KP.total_energy(R), tally_b[:, 4].sum()
+        return left, tally_b[:, 4].sum()
 
     t0 = time.perf_counter()
     target = method.tolerance * budget.injected

@@ -28,7 +28,8 @@ import math
 import numba as nb
 import numpy as np
 
-from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap, split
+from .propagation import (ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap,
+                          split, total_energy)
 from .sampling import corner_weights, trilinear, trilinear_clamped
 
 
@@ -264,6 +265,19 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
         tally_b[b, SIDE_ESCAPED] += side_out
         tally_b[b, ABSORBED] += absorbed
         tally_b[b, 4] += sent
+
+
+@nb.njit(fastmath=True, cache=True)
+def sweep(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip, w_min, inv_area, phi,
+          phia, bands, halo, anti, tally_b, handover, diffusive, Q):
+    """One sweep (sweep_spherical_bands) and the delivery of parked parts; returns the power
+    pending. Call it with numba.parallel_chunksize(1), as kernels.propagation.sweep."""
+    tally_b[:] = 0.0
+    sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip,
+                          w_min, inv_area, phi, phia, bands, halo, anti, tally_b, handover,
+                          diffusive, Q)
+    deliver(R, Ra, bands, halo, anti)
+    return total_energy(R)
 
 
 @nb.njit(fastmath=True, cache=True)
