@@ -261,3 +261,25 @@ def test_spherical_to_world_equals_numpy_twin(where, rng):
     for f, out in zip((a, b), outs):
         np.testing.assert_allclose(out, ref.spherical_to_world(f, dom, med.origin, med.voxel_size, needed),
                                    rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("where", ["inside", "far"])
+def test_resample_and_splat_kernels_equal_numpy_twins(where, rng):
+    """The medium into the spherical cells (zero or clamped outside the grid), and handed-over
+    power from the spherical cells into the diffusion stage's rectilinear grid (power conserved)."""
+    from popvol.domains import directional_domain
+    med = blob(n=12)
+    med.density[:] = rng.random(med.shape).astype(np.float32)
+    dom = spherical_domain(med, np.array(POSITIONS[where]), 10)
+    for clamp in (False, True):
+        out = np.empty(dom.shape, np.float32)
+        KS.resample_spherical(med.density, 1.0 / med.voxel_size, med.origin, dom.centre, dom.frame,
+                              dom.params, dom.shape, clamp, out)
+        np.testing.assert_allclose(out, ref.resample_spherical(med.density, med.voxel_size, med.origin, dom, clamp),
+                                   rtol=1e-5, atol=1e-6)
+    grid = directional_domain(med, np.array([0.0, 0.0, 1.0]), 9)
+    Q = rng.random(dom.shape).astype(np.float32)
+    out = np.zeros(grid.shape, np.float32)
+    KS.splat_to_grid(Q, dom.centre, dom.frame, dom.params, grid.origin, grid.h, grid.frame, out)
+    np.testing.assert_allclose(out, ref.splat_to_grid(Q, dom, grid), rtol=1e-5, atol=1e-5)
+    assert out.sum(dtype=np.float64) == pytest.approx(Q.sum(dtype=np.float64), rel=1e-5)

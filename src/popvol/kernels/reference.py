@@ -356,3 +356,23 @@ def spherical_to_world(field, dom, world_origin, voxel, needed):
             for jj, wj in ((j0, 1 - fj), (j1, fj)):
                 out += wk * wi * wj * field[kk, ii, jj]
     return np.where(needed, out.reshape(needed.shape), 0.0)
+
+
+def resample_spherical(grid, voxel, grid_origin, dom, clamp):
+    """Twin of kernels.spherical.resample_spherical: ``grid`` at the centres of a
+    SphericalDomain's cells (trilinear; clamped to the edge outside if ``clamp``, else 0)."""
+    q = (dom.index_to_world(np.moveaxis(np.indices(dom.shape), 0, -1)) - grid_origin) / voxel
+    if clamp:
+        q = np.clip(q, 0, np.asarray(grid.shape) - 1)
+    return trilinear(grid, q)
+
+
+def splat_to_grid(Q, dom, grid):
+    """Twin of kernels.spherical.splat_to_grid: each spherical cell's power added to the cell of
+    the rectilinear DirectionalDomain ``grid`` holding its centre (nearest edge cell if outside)."""
+    centres = dom.index_to_world(np.moveaxis(np.indices(dom.shape), 0, -1)).reshape(-1, 3)
+    idx = np.floor((centres - grid.origin) @ grid.frame.T / grid.h).astype(int)
+    idx = np.clip(idx, 0, np.asarray(grid.shape) - 1)
+    out = np.zeros(grid.shape)
+    np.add.at(out, tuple(idx.T), Q.reshape(-1))
+    return out
