@@ -283,3 +283,28 @@ def test_resample_and_splat_kernels_equal_numpy_twins(where, rng):
     KS.splat_to_grid(Q, dom.centre, dom.frame, dom.params, grid.origin, grid.h, grid.frame, out)
     np.testing.assert_allclose(out, ref.splat_to_grid(Q, dom, grid), rtol=1e-5, atol=1e-5)
     assert out.sum(dtype=np.float64) == pytest.approx(Q.sum(dtype=np.float64), rel=1e-5)
+
+
+def test_a_distant_point_light_is_a_sun():
+    """A point light of intensity E D^2 at distance D along -d lights the medium like a sun of
+    irradiance E travelling along d (to the beam's divergence, box / D): the walk's images agree
+    to 2 % in every pixel, 1 % in the median (measured 1.7 % and 0.5 % at 24 cells; the two
+    domains sample the medium differently: a cone of spherical cells against a rotated box).
+    With the diffusion stage they differ by
+    7-9 %: the diffusion grids differ (an axis-aligned box against the sun's rotated domain,
+    whose cells are larger), and the diffusion stage's answer depends on its cell size."""
+    from popvol.lights import DirectionalLight
+    med = blob(n=16, tau=3.0, albedo=0.9)
+    d = np.array([0.3, -0.8, -0.52]) / np.linalg.norm([0.3, -0.8, -0.52])
+    D = 2000.0
+    cam = Camera([0.5, 0.62, 2.4], [0.5, 0.5, 0.5], [0, 1, 0], 32.0, 24, 16)
+    images = []
+    for light in (PointLight(np.array([0.5, 0.5, 0.5]) - D * d, np.array([1.0, 0.8, 0.6]) * D**2),
+                  DirectionalLight(d, [1.0, 0.8, 0.6])):
+        scene = Scene(med, [light], cam, np.zeros(3), Method(resolution=24, isotropic="walk", tolerance=1e-5))
+        images.append(render(scene, jitter=False).astype(np.float64))
+    point, sun = images
+    lit = sun[..., 0] > 0.05 * sun[..., 0].max()
+    assert lit.sum() > 50
+    rel = point[lit] / sun[lit] - 1
+    assert np.abs(rel).max() < 0.02 and abs(np.median(rel)) < 0.01, (np.abs(rel).max(), np.median(rel))

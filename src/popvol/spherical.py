@@ -127,10 +127,10 @@ def propagate_point(sigma_t, sigma_s, g, dom: SphericalDomain, method: Method, p
 def diffuse_point(Q0, medium: Medium, dom: SphericalDomain, method: Method, channel: int, result):
     """The isotropic stage of a point light: the handed-over power Q0 (spherical cells) on a
     rectilinear grid over the medium (``method.diffusion_resolution`` cells along its longest
-    side, or ``resolution``), solved by diffusion.solve_diffusion. Adds to result's budget;
+    side, at most ``resolution``: as a sun's diffusion grid), solved by diffusion.solve_diffusion. Adds to result's budget;
     returns (the grid's DirectionalDomain, DiffusionResult)."""
-    grid = directional_domain(medium, np.array([0.0, 0.0, 1.0]),
-                              method.diffusion_resolution or method.resolution)
+    cells = min(method.resolution, method.diffusion_resolution or method.resolution)
+    grid = directional_domain(medium, np.array([0.0, 0.0, 1.0]), cells)
     source = np.zeros(grid.shape, np.float32)
     KS.splat_to_grid(Q0, dom.centre, dom.frame, dom.params, grid.origin, grid.h, grid.frame, source)
     sigma_t, sigma_s, g = resample_rectilinear(medium, grid, channel)
