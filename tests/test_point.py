@@ -235,6 +235,12 @@ def test_scene_file_point_light_and_bad_input(tmp_path):
         assert "\n" not in msg and all(w in msg for w in words), msg
 
 
+def test_paper_decay_with_negative_g_is_refused_for_point_lights_too():
+    med = blob(n=8, tau=1.0, g=-0.3)
+    with pytest.raises(PopvolError, match="decay = 'paper'.*g >= 0"):
+        solve_point_light(med, PointLight([0.5, 0.5, 0.5], 1.0), Method(resolution=8, decay="paper"))
+
+
 def test_fields_reach_every_voxel_the_renderer_reads():
     """The world fields are filled wherever rendering can read them, also in the voxels next to
     the medium outside a cone domain's cells (clamped to the edge cell)."""

@@ -336,14 +336,19 @@ def diffusion_factor(shape, method: Method) -> int:
     return max(1, round(max(shape) / method.diffusion_resolution))
 
 
-def solve_light(medium: Medium, light: DirectionalLight, method: Method, progress=None,
-                channel: int = 0) -> DomainSolution:
-    """Build the light's domain, resample the medium (colour ``channel``) into it and propagate
-    unit irradiance."""
+def check_decay(medium: Medium, method: Method) -> None:
+    """decay = 'paper' raises g to a power: it needs g >= 0 everywhere."""
     if method.decay == "paper" and medium.g_min < 0:
         from .errors import PopvolError
         raise PopvolError(f"{medium.source}: method.decay = 'paper' (g^(sigma_s s), supplement "
                           f"Eq. 12) needs g >= 0, got g = {medium.g_min:g}; use decay = 'poisson'")
+
+
+def solve_light(medium: Medium, light: DirectionalLight, method: Method, progress=None,
+                channel: int = 0) -> DomainSolution:
+    """Build the light's domain, resample the medium (colour ``channel``) into it and propagate
+    unit irradiance."""
+    check_decay(medium, method)
     t0 = time.perf_counter()
     resolution = method.resolution
     if light.from_environment and method.environment_resolution:

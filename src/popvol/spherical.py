@@ -28,7 +28,7 @@ from .kernels import propagation as KP
 from .kernels import spherical as KS
 from .lights import PointLight
 from .medium import Medium
-from .propagate import (Budget, DomainSolution, PropagationResult, default_max_iterations,
+from .propagate import (Budget, DomainSolution, PropagationResult, check_decay, default_max_iterations,
                         medium_factors, split_table32, sweep_until_converged)
 from .propagate import resample_medium as resample_rectilinear
 from .scene import Method
@@ -149,6 +149,7 @@ def solve_point_light(medium: Medium, light: PointLight, method: Method, progres
     """Build the light's spherical domain, resample the medium (colour ``channel``) into it,
     propagate unit intensity and, with the diffusion stage, diffuse what was handed over.
     Returns a propagate.DomainSolution (its ``diffusion_domain`` is the rectilinear grid)."""
+    check_decay(medium, method)
     t0 = time.perf_counter()
     dom = spherical_domain(medium, light.position, method.resolution)
     sigma_t, sigma_s, g = resample_medium(medium, dom, channel)
