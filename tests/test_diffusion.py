@@ -19,8 +19,10 @@ def random_medium(rng, shape, empty=0.2):
     return sigma_t.astype(np.float32), sigma_s.astype(np.float32), g.astype(np.float32)
 
 
-def assemble(D, sah3, mask, h):
-    """The matrix of kernels/diffusion.py's balance, written out cell by cell."""
+def assemble(D, sah3, mask, h, bw=None):
+    """The matrix of kernels/diffusion.py's balance, written out cell by cell (boundary faces
+    weighted by bw, default 1)."""
+    bw = np.ones(D.shape) if bw is None else bw
     shape = D.shape
     idx = -np.ones(shape, int)
     cells = list(zip(*np.nonzero(mask)))
@@ -39,7 +41,7 @@ def assemble(D, sah3, mask, h):
                 A[n, n] += G
                 A[n, idx[q]] -= G
             else:
-                A[n, n] += h * h * 2 * Dp / (4 * Dp + h)  # Marshak: J = phi_face / 2
+                A[n, n] += bw[k, i, j] * h * h * 2 * Dp / (4 * Dp + h)  # Marshak: J = phi_face / 2
     return A.tocsr(), cells
 
 
@@ -47,19 +49,61 @@ def test_operator_and_solver_match_a_sparse_direct_solve(rng):
     shape, h = (7, 6, 5), 0.1
     st, ss, g = random_medium(rng, shape)
     D, sah3, mask = diffusion.coefficients(st, ss, g, h)
-    A, cells = assemble(D, sah3, mask, h)
+    bw = rng.uniform(0.57, 1.0, shape).astype(np.float32)
+    A, cells = assemble(D, sah3, mask, h, bw)
     assert abs(A - A.T).max() < 1e-12                     # symmetric
     x = rng.random(shape) * mask
     out = np.empty(shape)
-    K.apply(x, D, sah3, mask, h, out)
+    K.apply(x, D, sah3, mask, h, out, bw)
     xv = np.array([x[c] for c in cells])
     np.testing.assert_allclose([out[c] for c in cells], A @ xv, rtol=1e-6, atol=1e-9)
     assert np.all(out[~mask] == 0)
     b = rng.random(shape) * mask
-    phi, it, res = diffusion.pcg(D, sah3, mask, h, b, 1e-10, 10_000)
+    phi, it, res = diffusion.pcg(D, sah3, mask, h, b, 1e-10, 10_000, bw)
     direct = spla.spsolve(A.tocsc(), np.array([b[c] for c in cells]))
     np.testing.assert_allclose([phi[c] for c in cells], direct, rtol=1e-7, atol=1e-12)
     assert res <= 1e-10
+
+
+def test_boundary_weight_is_the_smooth_surfaces_share_of_the_staircase():
+    """1 / |n|_1 for the unit normal n: 1 on a face-aligned plane, 1/sqrt(2) on a plane at 45
+    degrees to two axes, 1/sqrt(3) on one at equal angles to all three (away from the grid's
+    edges, where the smoothing sees the zero padding)."""
+    n = 24
+    c = np.arange(n) + 0.5
+    X, Y, Z = np.meshgrid(c, c, c, indexing="ij")
+    for normal, expected in (((1, 0, 0), 1.0), ((1, 1, 0), 2 ** -0.5), ((1, 1, 1), 3 ** -0.5)):
+        s = np.dot(np.stack([X, Y, Z], -1) - n / 2, np.array(normal, float))
+        mask = s < 0
+        w = diffusion.boundary_weight(mask)
+        band = (np.abs(s) < 1.0) & np.all((np.stack([X, Y, Z]) > 5) & (np.stack([X, Y, Z]) < n - 5), axis=0)
+        assert band.sum() > 50
+        np.testing.assert_allclose(w[band], expected, rtol=0.03)
+
+
+@pytest.mark.parametrize("R,sigma_tr,sigma_a", [(12, 1.0, 0.0005), (12, 0.3, 0.0005), (20, 1.0, 0.0002),
+                                                (12, 1.0, 0.01)])
+def test_sphere_with_a_uniform_source_matches_the_analytic_solution(R, sigma_tr, sigma_a):
+    """A homogeneous sphere (radius R cells, g = 0) with a uniform source and Marshak boundary:
+    phi(r) = q / sigma_a (1 - C sinh(kr) / (kr)), k = sqrt(sigma_a / D), C from phi + 2 D phi' = 0
+    at R. Its absorbed share of the source (set by the leak when sigma_a is small) within 7 %.
+    Measured +4 to +6 % with the boundary weight; -5 to -15 % without it (the staircase of cell
+    faces leaks through about 1.5x the sphere's area)."""
+    n = 2 * R + 4
+    c = (np.arange(n) + 0.5) - n / 2
+    X, Y, Z = np.meshgrid(c, c, c, indexing="ij")
+    inside = X**2 + Y**2 + Z**2 < R**2
+    sigma_t = np.where(inside, sigma_tr, 0.0).astype(np.float32)
+    sigma_s = np.where(inside, sigma_tr - sigma_a, 0.0).astype(np.float32)
+    Q0 = inside.astype(np.float32)
+    r = diffusion.solve_diffusion(Q0, np.zeros_like(Q0), sigma_t, sigma_s, np.zeros_like(sigma_t), 1.0, rtol=1e-6)
+    D = 1 / (3 * sigma_tr)
+    k = np.sqrt(sigma_a / D)
+    f = np.sinh(k * R) / (k * R)
+    fp = (k * R * np.cosh(k * R) - np.sinh(k * R)) / (k * R * R)
+    C = 1 / (f + 2 * D * fp)
+    absorbed = 1 - C * (4 * np.pi / k**3) * (k * R * np.cosh(k * R) - np.sinh(k * R)) / (4 / 3 * np.pi * R**3)
+    assert r.absorbed / r.source == pytest.approx(absorbed, rel=0.07)
 
 
 def test_power_balance_source_equals_absorbed_plus_leaked(rng):

@@ -6,9 +6,11 @@ the diffusion region (``mask``). Balance of cell p, in watts:
     sum_q G_pq (phi_p - phi_q) + sum_b G_b phi_p + sigma_a h^3 phi_p = b_p
 
 G_pq = h * 2 D_p D_q / (D_p + D_q) between two region cells (face area h^2 over distance h,
-harmonic mean of D = 1 / (3 sigma_tr)); G_b = h^2 * 2 D_p / (4 D_p + h) through a face to the
-outside of the region (domain boundary or a cell outside the region): the Marshak condition
-J = phi_face / 2 (no light enters) with Fick's law over the half cell to the face.
+harmonic mean of D = 1 / (3 sigma_tr)); G_b = bw_p * h^2 * 2 D_p / (4 D_p + h) through a face to
+the outside of the region (domain boundary or a cell outside the region): the Marshak condition
+J = phi_face / 2 (no light enters) with Fick's law over the half cell to the face. bw_p (<= 1,
+see diffusion.boundary_weight) makes the staircase of cell faces leak through the area of the
+smooth surface it approximates, not through its own (up to sqrt(3) times larger) area.
 The matrix is symmetric positive definite; it is never stored.
 """
 import numba as nb
@@ -31,7 +33,7 @@ def _neighbour(k, i, j, nbh):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _balance(x, D, sah3, mask, h, k, i, j):
+def _balance(x, D, sah3, mask, h, k, i, j, bw):
     """Row (k, i, j) of A: (diagonal, sum over region neighbours q of G_pq x_q)."""
     n0, n1, n2 = D.shape
     Dp = D[k, i, j]
@@ -44,27 +46,27 @@ def _balance(x, D, sah3, mask, h, k, i, j):
             diag += G
             acc += G * x[kq, iq, jq]
         else:
-            diag += g_boundary(Dp, h)
+            diag += g_boundary(Dp, h) * bw[k, i, j]
     return diag, acc
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def apply(x, D, sah3, mask, h, out):
-    """out = A x (zero outside the region). x, out float32/64; D, sah3 float32; mask bool."""
+def apply(x, D, sah3, mask, h, out, bw):
+    """out = A x (zero outside the region). x, out float32/64; D, sah3, bw float32; mask bool."""
     n0, n1, n2 = x.shape
     for kk in nb.prange(n0):
         k = np.int64(kk)
         for i in range(n1):
             for j in range(n2):
                 if mask[k, i, j]:
-                    diag, acc = _balance(x, D, sah3, mask, h, k, i, j)
+                    diag, acc = _balance(x, D, sah3, mask, h, k, i, j, bw)
                     out[k, i, j] = diag * x[k, i, j] - acc
                 else:
                     out[k, i, j] = 0.0
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def diagonal(D, sah3, mask, h, out):
+def diagonal(D, sah3, mask, h, out, bw):
     """The diagonal of A (1 outside the region, so that it can be divided by)."""
     n0, n1, n2 = D.shape
     for kk in nb.prange(n0):
@@ -72,7 +74,7 @@ def diagonal(D, sah3, mask, h, out):
         for i in range(n1):
             for j in range(n2):
                 if mask[k, i, j]:
-                    out[k, i, j] = _balance(D, D, sah3, mask, h, k, i, j)[0]   # x unused here
+                    out[k, i, j] = _balance(D, D, sah3, mask, h, k, i, j, bw)[0]   # x unused here
                 else:
                     out[k, i, j] = 1.0
 
@@ -120,7 +122,7 @@ def cg_direction(p, z, beta):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def leaks(phi, D, mask, h):
+def leaks(phi, D, mask, h, bw):
     """Power [W] leaving the region: (through face k = 0, through k = n_d - 1, through the 4
     lateral faces of the domain, into cells outside the region)."""
     n0, n1, n2 = phi.shape
@@ -134,7 +136,7 @@ def leaks(phi, D, mask, h):
             for j in range(n2):
                 if not mask[k, i, j]:
                     continue
-                g = g_boundary(D[k, i, j], h) * phi[k, i, j]
+                g = g_boundary(D[k, i, j], h) * bw[k, i, j] * phi[k, i, j]
                 for nbh in range(6):
                     kq, iq, jq = _neighbour(k, i, j, nbh)
                     if kq < 0:

@@ -213,7 +213,7 @@ def render_pixel(scene, solution, px, py):
                     if pd > 0:
                         J = np.array([float(trilinear(solution.flux[l, c, k], q)) for k in range(3)])
                         jn = np.linalg.norm(J)
-                        lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, g * min(jn / pd, 1 / 3))
+                        lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, g * min(jn / pd, 0.5))
                         Ls += pd * lobe * E
         sigma_t = med.scale * rho
         T_seg = np.exp(-sigma_t * ds)
