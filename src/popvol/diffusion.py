@@ -16,9 +16,11 @@ the domain faces and where the region ends, through the area of the region's smo
 the region's boundary is a staircase of cell faces whose area is |n_x| + |n_y| + |n_z| (the L1
 norm of the unit normal, 1 to sqrt(3)) times the surface's, so each boundary face of a cell
 leaks with the weight 1 / |n|_1, n the normal of the smoothed region mask there
-(:func:`boundary_weight`). Without it the diffuse light leaked ~1.4x too fast on the WDAS cloud
-(x0.66 -> x0.80 on wdas_sun, issue "accuracy"), and more so on finer grids. Solved by conjugate gradients (Jacobi
-preconditioner) in kernels/diffusion.py.
+(:func:`boundary_weight`). Without it the diffuse light of the WDAS cloud leaked ~1.4x too fast
+(wdas_sun x0.66 -> x0.80 at 128 cells). On a homogeneous sphere whose fluence is set by its
+leak, the absorbed share comes out 4-6 % high with the weight and 5-15 % low without it
+(tests/test_diffusion.py, against the analytic solution). Solved by conjugate gradients
+(Jacobi preconditioner) in kernels/diffusion.py.
 
 The region: cells with sigma_tr > 0; D is capped at L / 3 (L: the domain's longest side), a
 transport mean free path as long as the domain, so the thinnest fringes stay finite.
@@ -26,10 +28,11 @@ transport mean free path as long as the domain, so the thinnest fringes stay fin
 Rendering: the diffuse light is a second lobe beside the walk's, phi_d * HG(w . J/|J|; A) with
 J = -D grad phi_d the diffusion flux and A = min(|J| / phi_d, 1/2): the same fluence and first
 moment as the P1 radiance (phi_d + 3 J . w) / 4 pi up to |J| = phi_d / 2, the Marshak value at
-the region's boundary (where the light that the camera sees leaves), and never negative. (A cap
-of 1/3, where P1 itself stays >= 0, left the sunlit faces of the WDAS cloud ~6 % darker.) Its axis is J's own direction: light leaving a cloud
-sideways to the sun is seen leaving sideways (folding J onto the light's axis, as the walk's
-lobe is, lost much of the brightness of faces lit at grazing angles). Allowing A up to 1 made
+the region's boundary (where the light that the camera sees leaves), and never negative (a cap
+of 1/3, where P1 itself stays >= 0, left the sunlit faces of the WDAS cloud ~6 % darker). Its
+axis is J's own direction: light leaving a cloud sideways to the sun is seen leaving sideways
+(folding J onto the light's axis, as the walk's lobe is, lost much of the brightness of faces
+lit at grazing angles). Allowing A up to 1 made
 speckles where the fluence is spiky near hand-over cells.
 
 Biases (documented in the README): diffusion is wrong where the medium is thin on the scale of
