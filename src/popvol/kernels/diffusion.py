@@ -13,6 +13,8 @@ see diffusion.boundary_weight) makes the staircase of cell faces leak through th
 smooth surface it approximates, not through its own (up to sqrt(3) times larger) area.
 The matrix is symmetric positive definite; it is never stored.
 """
+import math
+
 import numba as nb
 import numpy as np
 
@@ -148,3 +150,78 @@ def leaks(phi, D, mask, h, bw):
                     elif not mask[kq, iq, jq]:
                         o += g
     return r, t, s, o
+
+
+BINOMIAL = (0.0625, 0.25, 0.375, 0.25, 0.0625)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def _binomial(src, dst, axis):
+    """dst = src filtered by [1 4 6 4 1] / 16 along ``axis`` (zero outside the grid)."""
+    n0, n1, n2 = src.shape
+    n = src.shape[axis]
+    for kk in nb.prange(n0):
+        k = np.int64(kk)
+        for i in range(n1):
+            for j in range(n2):
+                c = k if axis == 0 else (i if axis == 1 else j)
+                acc = 0.0
+                for t in range(5):
+                    q = c + t - 2
+                    if q < 0 or q >= n:
+                        continue
+                    if axis == 0:
+                        acc += BINOMIAL[t] * src[q, i, j]
+                    elif axis == 1:
+                        acc += BINOMIAL[t] * src[k, q, j]
+                    else:
+                        acc += BINOMIAL[t] * src[k, i, q]
+                dst[k, i, j] = acc
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _gradient(m, k, i, j, axis):
+    """np.gradient of m along axis at (k, i, j): central inside, one-sided at the edges."""
+    n = m.shape[axis]
+    if n < 2:
+        return 0.0
+    c = k if axis == 0 else (i if axis == 1 else j)
+    lo = max(c - 1, 0)
+    hi = min(c + 1, n - 1)
+    if axis == 0:
+        d = m[hi, i, j] - m[lo, i, j]
+    elif axis == 1:
+        d = m[k, hi, j] - m[k, lo, j]
+    else:
+        d = m[k, i, hi] - m[k, i, lo]
+    return d / (hi - lo)
+
+
+@nb.njit(fastmath=True, cache=True)
+def boundary_weight(mask, out):
+    """out float32 = 1 / |n|_1 of the region's smoothed surface in region cells (see
+    diffusion.boundary_weight), 1 elsewhere."""
+    a = mask.astype(np.float32)
+    b = np.empty_like(a)
+    _binomial(a, b, 0)
+    _binomial(b, a, 1)
+    _binomial(a, b, 2)
+    _weights(mask, b, out)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def _weights(mask, m, out):
+    n0, n1, n2 = m.shape
+    for kk in nb.prange(n0):
+        k = np.int64(kk)
+        for i in range(n1):
+            for j in range(n2):
+                out[k, i, j] = 1.0
+                if not mask[k, i, j]:
+                    continue
+                gx = _gradient(m, k, i, j, 0)
+                gy = _gradient(m, k, i, j, 1)
+                gz = _gradient(m, k, i, j, 2)
+                l2 = math.sqrt(gx * gx + gy * gy + gz * gz)
+                if l2 > 1e-6:
+                    out[k, i, j] = l2 / (abs(gx) + abs(gy) + abs(gz))

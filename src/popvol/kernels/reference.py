@@ -376,3 +376,24 @@ def splat_to_grid(Q, dom, grid):
     out = np.zeros(grid.shape)
     np.add.at(out, tuple(idx.T), Q.reshape(-1))
     return out
+
+
+def boundary_weight(mask) -> np.ndarray:
+    """float32 (mask's shape): 1 / |n|_1 = |grad m|_2 / |grad m|_1 (in [1/sqrt(3), 1]), with m the
+    region mask smoothed by a binomial filter [1 4 6 4 1] / 16 along each axis (a Gaussian of
+    one cell; zero outside the grid): the factor by which a boundary cell's faces overstate the
+    area of the smooth surface through it. 1 where the smoothed mask is flat or outside the
+    region. Twin of kernels.diffusion.boundary_weight."""
+    m = mask.astype(np.float64)
+    kernel = np.array([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
+    for axis in range(3):
+        pad = [(0, 0)] * 3
+        pad[axis] = (2, 2)
+        p = np.pad(m, pad)
+        n = m.shape[axis]
+        m = sum(kernel[t] * np.take(p, np.arange(t, t + n), axis=axis) for t in range(5))
+    grads = [np.gradient(m, axis=a) if m.shape[a] > 1 else np.zeros_like(m) for a in range(3)]
+    l2 = np.sqrt(sum(gr * gr for gr in grads))
+    l1 = sum(np.abs(gr) for gr in grads)
+    w = np.where(mask & (l2 > 1e-6), l2 / np.maximum(l1, 1e-30), 1.0)
+    return w.astype(np.float32)
