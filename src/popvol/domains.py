@@ -163,6 +163,21 @@ class SphericalDomain:
 
 #: A cone wider than this (half-angle) becomes a full sphere: its corners would be too distorted.
 MAX_CONE_HALF_ANGLE = np.radians(60.0)
+#: Point lights farther than this many medium diagonals are refused (use a sun): the float32
+#: fields could not hold r^2 phi and 1 / r^2 much beyond it.
+MAX_POINT_DISTANCE = 1e6
+
+
+def check_point_distance(medium: Medium, position: np.ndarray, field: str) -> None:
+    """Refuse a point light farther than MAX_POINT_DISTANCE medium diagonals from the medium."""
+    p = np.asarray(position, np.float64)
+    lo, hi = medium.bounds
+    diagonal = float(np.linalg.norm(hi - lo))
+    gap = np.abs(p - np.clip(p, lo, hi)).max()         # before any square can overflow
+    if not gap <= MAX_POINT_DISTANCE * diagonal:
+        raise PopvolError(f"{field}: a point light at {p.tolist()} is {gap:.3g} units from the "
+                          f"medium, more than {MAX_POINT_DISTANCE:g} times its size ({diagonal:.3g}); "
+                          "its light arrives as parallel as a sun's: use a directional light")
 
 
 def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> SphericalDomain:
@@ -173,6 +188,7 @@ def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> S
     p = np.asarray(position, np.float64)
     lo, hi = medium.bounds
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    check_point_distance(medium, p, medium.source)
     rel = corners - p
     r_hi = float(np.linalg.norm(rel, axis=1).max())
     r_lo = float(np.linalg.norm(p - np.clip(p, lo, hi)))
@@ -180,8 +196,9 @@ def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> S
     alpha = np.pi
     if r_lo > 0:
         axis = axis / np.linalg.norm(axis)
-        cosines = rel @ axis / np.linalg.norm(rel, axis=1)
-        alpha = float(np.arccos(np.clip(cosines.min(), -1.0, 1.0))) * (1 + 1e-6) + 1e-9
+        # the angle of each corner from the axis; arctan2 keeps small angles accurate
+        sines = np.linalg.norm(np.cross(rel, axis), axis=1)
+        alpha = float(np.arctan2(sines, rel @ axis).max()) * (1 + 1e-6)
     r_m = 0.5 * (r_lo + r_hi)
     if alpha > MAX_CONE_HALF_ANGLE:
         # poles along world y; e1 x e2 = e3
@@ -204,8 +221,9 @@ def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> S
     return dom
 
 
-#: Working-set bytes per spherical cell: R, Ra, phi, phia and six direction-dependent factors.
-BYTES_PER_SPHERICAL_CELL = 4 * 13
+#: Working-set bytes per spherical cell (float32): R, Ra, phi, phia, six direction-dependent
+#: factors, sigma_t, sigma_s and g while the factors are made, the hand-over's Q (2) and flags.
+BYTES_PER_SPHERICAL_CELL = 4 * 16
 
 
 def available_memory() -> int:

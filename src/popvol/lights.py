@@ -16,6 +16,13 @@ import numpy as np
 from .errors import PopvolError
 
 
+def _floats(value, name: str, source: str) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise PopvolError(f"{source}: light {name} must be numbers, got {value!r}") from None
+
+
 @dataclass
 class DirectionalLight:
     """Collimated light from infinitely far away.
@@ -35,11 +42,11 @@ class DirectionalLight:
     from_environment: bool = False
 
     def __post_init__(self):
-        d = np.asarray(self.direction, dtype=np.float64)
+        d = _floats(self.direction, "direction", self.source)
         if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
             raise PopvolError(f"{self.source}: light direction must be 3 finite numbers, not all zero, got {self.direction!r}")
         self.direction = d / np.linalg.norm(d)
-        e = np.asarray(self.irradiance, dtype=np.float64)
+        e = _floats(self.irradiance, "irradiance", self.source)
         if e.ndim == 0:
             e = np.full(3, float(e))
         if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
@@ -71,11 +78,11 @@ class PointLight:
     from_environment: bool = False
 
     def __post_init__(self):
-        p = np.asarray(self.position, dtype=np.float64)
+        p = _floats(self.position, "position", self.source)
         if p.shape != (3,) or not np.all(np.isfinite(p)):
             raise PopvolError(f"{self.source}: light position must be 3 finite numbers, got {self.position!r}")
         self.position = p
-        e = np.asarray(self.intensity, dtype=np.float64)
+        e = _floats(self.intensity, "intensity", self.source)
         if e.ndim == 0:
             e = np.full(3, float(e))
         if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):

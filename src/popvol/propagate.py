@@ -416,7 +416,8 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
     ``reuse``: an earlier solution. Lights that it solved for the same medium and method
     (irradiance may differ: fields are per unit irradiance) are copied from it instead of
     propagated again, so moving one light of several re-propagates that light only, and
-    changing a light's irradiance or the camera re-propagates nothing.
+    changing a light's irradiance or the camera re-propagates nothing. Grids are compared by
+    identity: a medium whose arrays were changed in place must not be solved with ``reuse``.
     """
     from .spherical import fields_to_world, solve_point_light
     med = scene.medium

@@ -170,6 +170,9 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
                 raise PopvolError(f"{source}: lights[{i}]: only one environment light (envmap or sky) per scene")
             environment, got = got
         lights += got if isinstance(got, list) else [got]
+        if isinstance(got, PointLight):
+            from .domains import check_point_distance
+            check_point_distance(medium, got.position, f"{source}: lights[{i}].position")
 
     bg = data.get("background", {})
     if not isinstance(bg, dict):

@@ -22,7 +22,7 @@ import time
 import numba
 import numpy as np
 
-from .diffusion import solve_diffusion
+from .diffusion import coefficients, solve_diffusion
 from .domains import SphericalDomain, directional_domain, spherical_domain
 from .kernels import propagation as KP
 from .kernels import spherical as KS
@@ -127,19 +127,23 @@ def propagate_point(sigma_t, sigma_s, g, dom: SphericalDomain, method: Method, p
 def diffuse_point(Q0, medium: Medium, dom: SphericalDomain, method: Method, channel: int, result):
     """The isotropic stage of a point light: the handed-over power Q0 (spherical cells) on a
     rectilinear grid over the medium (``method.diffusion_resolution`` cells along its longest
-    side, at most ``resolution``: as a sun's diffusion grid), solved by diffusion.solve_diffusion. Adds to result's budget;
-    returns (the grid's DirectionalDomain, DiffusionResult)."""
+    side, at most ``resolution``: as a sun's diffusion grid), solved by
+    diffusion.solve_diffusion. Adds to result's budget; returns (the grid's DirectionalDomain,
+    DiffusionResult)."""
     cells = min(method.resolution, method.diffusion_resolution or method.resolution)
     grid = directional_domain(medium, np.array([0.0, 0.0, 1.0]), cells)
-    source = np.zeros(grid.shape, np.float32)
-    KS.splat_to_grid(Q0, dom.centre, dom.frame, dom.params, grid.origin, grid.h, grid.frame, source)
     sigma_t, sigma_s, g = resample_rectilinear(medium, grid, channel)
+    _, _, region = coefficients(sigma_t, sigma_s, g, grid.h)
+    source = np.zeros(grid.shape, np.float32)
+    lost = KS.splat_to_grid(Q0, dom.centre, dom.frame, dom.params, grid.origin, grid.h, grid.frame,
+                            region, source)
     d = solve_diffusion(source, np.zeros_like(source), sigma_t, sigma_s, g, grid.h,
                         rtol=0.1 * method.tolerance)
     b = result.budget
     b.absorbed += d.absorbed
     b.transmitted += sum(d.leaked[:3])       # out of the grid's faces
-    b.diffusion_leak = d.leaked[3]
+    # what was handed over where the grid has no diffusion cell nearby is not propagated
+    b.diffusion_leak = d.leaked[3] + lost
     result.diffusion = d
     return grid, d
 

@@ -367,15 +367,28 @@ def resample_spherical(grid, voxel, grid_origin, dom, clamp):
     return trilinear(grid, q)
 
 
-def splat_to_grid(Q, dom, grid):
+def splat_to_grid(Q, dom, grid, region):
     """Twin of kernels.spherical.splat_to_grid: each spherical cell's power added to the cell of
-    the rectilinear DirectionalDomain ``grid`` holding its centre (nearest edge cell if outside)."""
+    the rectilinear DirectionalDomain ``grid`` holding its centre (nearest edge cell if outside),
+    or, if that cell is not in ``region``, to the region cell among its 26 neighbours with the
+    nearest centre; returns (grid of power, power lost where there is none)."""
     centres = dom.index_to_world(np.moveaxis(np.indices(dom.shape), 0, -1)).reshape(-1, 3)
-    idx = np.floor((centres - grid.origin) @ grid.frame.T / grid.h).astype(int)
-    idx = np.clip(idx, 0, np.asarray(grid.shape) - 1)
-    out = np.zeros(grid.shape)
-    np.add.at(out, tuple(idx.T), Q.reshape(-1))
-    return out
+    q = (centres - grid.origin) @ grid.frame.T / grid.h
+    idx = np.clip(np.floor(q).astype(int), 0, np.asarray(grid.shape) - 1)
+    out, lost = np.zeros(grid.shape), 0.0
+    offsets = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
+    for qi, cell, e in zip(q, idx, Q.reshape(-1)):
+        if e == 0:
+            continue
+        if not region[tuple(cell)]:
+            options = [cell + o for o in offsets
+                       if np.all(cell + o >= 0) and np.all(cell + o < grid.shape) and region[tuple(cell + o)]]
+            if not options:
+                lost += float(e)
+                continue
+            cell = min(options, key=lambda n: float(np.sum((n + 0.5 - qi) ** 2)))
+        out[tuple(cell)] += e
+    return out, lost
 
 
 def boundary_weight(mask) -> np.ndarray:

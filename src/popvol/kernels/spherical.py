@@ -122,14 +122,18 @@ def spherical_to_world(fields, centre, frame, params, full, world_origin, voxel,
 
 
 @nb.njit(fastmath=True, cache=True)
-def splat_to_grid(Q, centre, frame, params, grid_origin, h, grid_frame, out):
+def splat_to_grid(Q, centre, frame, params, grid_origin, h, grid_frame, region, out):
     """Add each spherical cell's power Q (n_r, n_theta, n_phi) to the cell of a rectilinear
     domain (frame rows d, u, v, corner ``grid_origin``, cubic cells h; ``out`` its shape) that
-    holds the cell's centre; power whose centre falls outside is added to the nearest edge
-    cell. Serial: two cells may land in the same target."""
+    holds the cell's centre (the nearest edge cell if outside). If that cell is not in the
+    diffusion ``region`` (bool, out's shape; the two grids sample the medium at different
+    points, so this happens at the medium's edges), the power goes to the region cell among its
+    26 neighbours whose centre is nearest; if there is none, it is returned as lost. Serial:
+    two cells may land in the same target."""
     n0, n1, n2 = Q.shape
     m0, m1, m2 = out.shape
     r0, dr, t0, dt, p0, dp = params[0], params[1], params[2], params[3], params[4], params[5]
+    lost = 0.0
     for k in range(n0):
         r = r0 + (k + 0.5) * dr
         for i in range(n1):
@@ -145,10 +149,32 @@ def splat_to_grid(Q, centre, frame, params, grid_origin, h, grid_frame, out):
                 px = centre[0] + ox - grid_origin[0]
                 py = centre[1] + oy - grid_origin[1]
                 pz = centre[2] + oz - grid_origin[2]
-                a = int(math.floor((px * grid_frame[0, 0] + py * grid_frame[0, 1] + pz * grid_frame[0, 2]) / h))
-                b = int(math.floor((px * grid_frame[1, 0] + py * grid_frame[1, 1] + pz * grid_frame[1, 2]) / h))
-                c = int(math.floor((px * grid_frame[2, 0] + py * grid_frame[2, 1] + pz * grid_frame[2, 2]) / h))
-                out[min(max(a, 0), m0 - 1), min(max(b, 0), m1 - 1), min(max(c, 0), m2 - 1)] += e
+                qa = (px * grid_frame[0, 0] + py * grid_frame[0, 1] + pz * grid_frame[0, 2]) / h
+                qb = (px * grid_frame[1, 0] + py * grid_frame[1, 1] + pz * grid_frame[1, 2]) / h
+                qc = (px * grid_frame[2, 0] + py * grid_frame[2, 1] + pz * grid_frame[2, 2]) / h
+                a = min(max(int(math.floor(qa)), 0), m0 - 1)
+                b = min(max(int(math.floor(qb)), 0), m1 - 1)
+                c = min(max(int(math.floor(qc)), 0), m2 - 1)
+                if not region[a, b, c]:
+                    best = 1e300
+                    ba, bb, bc = -1, -1, -1
+                    for da in range(-1, 2):
+                        for db in range(-1, 2):
+                            for dc in range(-1, 2):
+                                na, nb_, nc = a + da, b + db, c + dc
+                                if (na < 0 or na >= m0 or nb_ < 0 or nb_ >= m1 or nc < 0 or nc >= m2
+                                        or not region[na, nb_, nc]):
+                                    continue
+                                d2 = (na + 0.5 - qa) ** 2 + (nb_ + 0.5 - qb) ** 2 + (nc + 0.5 - qc) ** 2
+                                if d2 < best:
+                                    best = d2
+                                    ba, bb, bc = na, nb_, nc
+                    if ba < 0:
+                        lost += e
+                        continue
+                    a, b, c = ba, bb, bc
+                out[a, b, c] += e
+    return lost
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)

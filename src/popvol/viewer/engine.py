@@ -2,7 +2,7 @@
 
 - A camera or exposure change renders with the solution it has (no propagation).
 - An intensity change replaces the solution's irradiance (fields are per unit power).
-- A sun or medium change propagates again; ``popvol.solve(reuse=...)`` (where available) copies
+- A sun or medium change propagates again; ``popvol.solve(reuse=...)`` copies
   the domains of lights that did not change from the previous solution.
 
 Two levels of quality: "draft" (while the user drags: half the pixels per axis, a coarser
@@ -14,7 +14,6 @@ An Engine is not thread-safe: the server calls it from one worker thread only.
 from __future__ import annotations
 
 import copy
-import inspect
 import io
 import time
 import tomllib
@@ -34,7 +33,6 @@ from . import settings as S
 DRAFT, FULL = "draft", "full"
 MAX_SOLUTIONS = 4                  # solutions kept for returning to earlier settings ...
 MAX_CACHE_BYTES = 512 * 2**20      # ... as long as their fields fit in this many bytes
-_SOLVE_REUSES = "reuse" in inspect.signature(solve).parameters
 
 
 @dataclass
@@ -158,7 +156,7 @@ class Engine:
                 return self._with_irradiance(self._solutions[key], scene), False, key[1]
         key = keys[-1]                      # the scene's own method has this level's cells
         previous = self._last.get(key[1])
-        sol = solve(scene, reuse=previous) if _SOLVE_REUSES else solve(scene)
+        sol = solve(scene, reuse=previous)
         self.solves += 1
         self._last[key[1]] = sol
         self._solutions[key] = sol
