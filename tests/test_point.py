@@ -14,7 +14,8 @@ from popvol.medium import Medium
 from popvol.propagate import medium_factors, solve, split_table32, voxels_seen
 from popvol.render import render
 from popvol.scene import Method, Scene
-from popvol.spherical import fields_to_world, inverse_area, solve_point_light, transfer_lengths
+from popvol.kernels.render import point_lookup
+from popvol.spherical import inverse_area, point_fields, solve_point_light, transfer_lengths
 
 POSITIONS = {"inside": [0.5, 0.5, 0.5], "off-centre": [0.3, 0.62, 0.45],
              "close above": [0.5, 1.2, 0.5], "far": [3.0, 0.8, 0.4]}
@@ -33,7 +34,7 @@ def blob(n=16, tau=0.0, albedo=1.0, g=0.6):
 def test_vacuum_fluence_is_the_inverse_square_law(where):
     """In vacuum every cell centre gets phi = I / r^2 (to float32 rounding), all the emitted
     power (4 pi I on a full sphere, I times the cone's solid angle otherwise) leaves through
-    the outer sphere, and the r^2-weighted world field is I everywhere."""
+    the outer sphere, and the r^2-weighted field the renderer looks up is I everywhere."""
     med = blob(tau=0.0)
     ds = solve_point_light(med, PointLight(POSITIONS[where], 1.0), Method(resolution=20, isotropic="walk"))
     dom, r = ds.domain, ds.result
@@ -45,10 +46,13 @@ def test_vacuum_fluence_is_the_inverse_square_law(where):
         assert b.injected == pytest.approx(4 * np.pi)
     assert b.transmitted == pytest.approx(b.injected, rel=1e-6)
     assert b.absorbed == b.reflected == b.side == 0.0
-    needed = np.ones(med.shape, bool)
-    phi, phia = np.zeros(med.shape, np.float32), np.zeros(med.shape, np.float32)
-    fields_to_world(ds, med, phi, phia, needed)
-    np.testing.assert_allclose(phi, 1.0, rtol=1e-5)
+    # what the renderer looks up: r^2 phi = I everywhere, also between cell centres
+    pts = point_fields([ds], 1, 1)
+    rng = np.random.default_rng(1)
+    for x in rng.uniform(-0.2, 1.2, (50, 3)):
+        q0, q1, q2, _ = KS.spherical_index(dom.centre, dom.frame, dom.params, dom.full, *x)
+        val, vala = point_lookup(pts.fields, pts.offset[0, 0], pts.shape[0], q0, q1, q2, dom.full)
+        assert val == pytest.approx(1.0, rel=1e-5) and vala == pytest.approx(1.0, rel=1e-5)
 
 
 def test_cone_holds_the_box_and_the_full_sphere_covers_4_pi():
@@ -259,32 +263,37 @@ def test_paper_decay_with_negative_g_is_refused_for_point_lights_too():
         solve_point_light(med, PointLight([0.5, 0.5, 0.5], 1.0), Method(resolution=8, decay="paper"))
 
 
-def test_fields_reach_every_voxel_the_renderer_reads():
-    """The world fields are filled wherever rendering can read them, also in the voxels next to
-    the medium outside a cone domain's cells (clamped to the edge cell)."""
+def test_point_fields_reach_every_voxel_the_renderer_reads():
+    """The point light's walk fields, looked up in its domain, are positive at every voxel the
+    renderer reads (also next to the medium outside a cone's cells: clamped to the edge cell)."""
     med = blob(n=16, tau=3.0, albedo=0.9)
+    idx = np.argwhere(voxels_seen(med.density))
     for where in ("inside", "far"):
         scene = Scene(med, [PointLight(POSITIONS[where], 1.0)], Camera([0.5, 0.5, 3], [0.5, 0.5, 0.5], [0, 1, 0], 30, 8, 8),
                       method=Method(resolution=16))
         sol = solve(scene)
-        seen = voxels_seen(med.density)
-        assert np.all(sol.phi[0, 0][seen] > 0)
-        assert np.all(np.isfinite(sol.phi)) and np.all(np.isfinite(sol.phid))
+        pts, dom = sol.points, sol.domains[0].domain
+        assert np.all(sol.phi == 0)                      # not on the world grid
+        for x in med.origin + idx * med.voxel_size:
+            q = KS.spherical_index(dom.centre, dom.frame, dom.params, dom.full, *x)[:3]
+            assert point_lookup(pts.fields, pts.offset[0, 0], pts.shape[0], *q, dom.full)[0] > 0
+        assert np.all(np.isfinite(pts.fields)) and np.all(np.isfinite(sol.phid))
 
 
 @pytest.mark.parametrize("where", ["inside", "far"])
-def test_spherical_to_world_equals_numpy_twin(where, rng):
-    """Both fields at once, only where needed (zeros elsewhere), phi periodic on a full sphere."""
+def test_point_lookup_equals_numpy_twin(where, rng):
+    """The renderer's lookup in a spherical domain (trilinear in r, theta, phi, clamped, phi
+    periodic on a full sphere) against the NumPy twin, at random points in and around the box."""
     med = blob(n=12)
     dom = spherical_domain(med, np.array(POSITIONS[where]), 10)
     a, b = (rng.random(dom.shape).astype(np.float32) for _ in range(2))
-    needed = rng.random(med.shape) < 0.6
-    outs = (np.zeros(med.shape, np.float32), np.zeros(med.shape, np.float32))
-    KS.spherical_to_world((a, b), dom.centre, dom.frame, dom.params, dom.full, med.origin,
-                          med.voxel_size, outs, needed)
-    for f, out in zip((a, b), outs):
-        np.testing.assert_allclose(out, ref.spherical_to_world(f, dom, med.origin, med.voxel_size, needed),
-                                   rtol=1e-5, atol=1e-6)
+    fields = np.stack([a.ravel(), b.ravel()])
+    at = np.ones((1, 1, 1), bool)
+    for x in rng.uniform(-0.1, 1.1, (40, 3)):
+        q = KS.spherical_index(dom.centre, dom.frame, dom.params, dom.full, *x)[:3]
+        got = point_lookup(fields, 0, np.array(dom.shape), *q, dom.full)
+        want = [ref.spherical_to_world(f, dom, x, np.zeros(3), at)[0, 0, 0] for f in (a, b)]
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.parametrize("where", ["off-centre", "far"])

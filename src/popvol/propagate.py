@@ -271,8 +271,8 @@ class Solution:
 
     phi, phia: float32 (n_lights, n_channels, nx, ny, nz), per unit irradiance (grey media:
     n_channels = 1; the renderer multiplies by each light's RGB irradiance): the walk's lobe,
-    along each light's direction. For a point light: per unit intensity, times r^2 (r the
-    distance to the light; the renderer divides by it), the lobe along r (see spherical.py).
+    along each light's direction. Zero for a point light, whose walk fields stay in its
+    spherical domain (``points``, per unit intensity, times r^2; see spherical.py).
     phid: float32 (n_lights, n_channels, nx, ny, nz), fluence of the diffuse light, and
     All fields are 0 at voxels the renderer never reads (:func:`voxels_seen`).
     flux: float32 (n_lights, n_channels, 3, nx, ny, nz), its world-space flux vector J
@@ -291,6 +291,7 @@ class Solution:
     key: tuple = ()            # medium_key and method_key it was solved for (see solve's reuse)
     positions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (n_lights, 3)
     is_point: np.ndarray = field(default_factory=lambda: np.zeros(0, np.bool_))  # (n_lights,)
+    points: object = None      # spherical.PointFields: point lights' walk fields, in their domains
 
     def stats(self) -> dict:
         out = {"seconds": dict(self.seconds), "domains": []}
@@ -419,7 +420,7 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
     changing a light's irradiance or the camera re-propagates nothing. Grids are compared by
     identity: a medium whose arrays were changed in place must not be solved with ``reuse``.
     """
-    from .spherical import fields_to_world, solve_point_light
+    from .spherical import point_fields, solve_point_light
     med = scene.medium
     n = len(scene.lights)
     n_ch = med.n_channels
@@ -462,9 +463,7 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
             ds.light_index = i
             t0 = time.perf_counter()
             d = ds.domain
-            if point:
-                fields_to_world(ds, med, phi[i, ch], phia[i, ch], needed)
-            else:
+            if not point:       # a point light's walk fields are looked up in its own domain
                 domain_to_world((ds.result.phi, ds.result.phia), d.frame, d.origin, d.h, med.origin,
                                 med.voxel_size, (phi[i, ch], phia[i, ch]), needed)
             if diffusion:
@@ -486,4 +485,4 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
     power = np.array([l.power for l in scene.lights]).reshape(-1, 3)
     return Solution(med, sols, phi, phia, dirs, power,
                     {"resample": t_res, "propagate": t_prop, "diffusion": t_diff, "fields": t_fields},
-                    phid, flux, key, pos, point)
+                    phid, flux, key, pos, point, point_fields(sols, n, n_ch))

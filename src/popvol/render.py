@@ -10,6 +10,7 @@ from .errors import PopvolError
 from .kernels.render import render_kernel
 from .propagate import Solution, solve
 from .scene import Scene
+from .spherical import no_point_fields
 
 
 def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) -> np.ndarray:
@@ -29,6 +30,7 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
                           else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
+    pts = solution.points or no_point_fields(len(solution.directions), solution.phi.shape[1])
     # rows go to threads one at a time: rows through the medium cost far more than the sky's
     with numba.parallel_chunksize(1):
         render_kernel(med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
@@ -36,6 +38,7 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
                       np.ascontiguousarray(solution.directions, np.float64),
                       np.ascontiguousarray(solution.irradiance, np.float64),
                       np.ascontiguousarray(solution.positions, np.float64), solution.is_point,
+                      pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full,
                       background_map(scene), cam.origin, cam.basis(),
                       float(np.tan(np.radians(cam.fov) / 2)), cam.width, cam.height, step, m.spp,
                       m.seed, jitter, out)

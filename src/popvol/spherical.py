@@ -8,16 +8,18 @@ over the medium: power handed over in the spherical cells is added to the grid c
 each cell's centre (its first moment is left out: packets hand over at |a| < handover, so it
 is at most ``handover`` times the power; this is a small bias).
 
-For rendering, the walk's fields go to the world grid multiplied by r^2 (r: distance to the
-light): r^2 phi is smooth where phi has the 1/r^2 spike of the light (in vacuum it is I,
-constant), so trilinear lookup stays exact near the light; the renderer divides by r^2 of each
-sample (kernels/render.py).
+For rendering, the walk's fields stay in the spherical domain, multiplied by r^2 (r: distance
+to the light): r^2 phi is smooth where phi has the 1/r^2 spike of the light (in vacuum it is I,
+constant), so the renderer's trilinear lookup in (r, theta, phi) per sample stays exact near
+the light, and it divides by that sample's r^2 (kernels/render.py). The diffusion stage's
+fields go to the world grid as a sun's do.
 
 Point lights always use the sweep solver (``method.solver`` = "jacobi" applies to suns only).
 """
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -168,11 +170,48 @@ def solve_point_light(medium: Medium, light: PointLight, method: Method, progres
     return ds
 
 
-def fields_to_world(ds, medium: Medium, phi: np.ndarray, phia: np.ndarray, needed: np.ndarray):
-    """The walk's fields of a point light's domain on the world grid, times r^2 (see the module
-    docstring), into phi, phia float32 (nx, ny, nz) (zero-filled; only ``needed`` voxels are
-    written)."""
-    dom = ds.domain
-    r2 = (dom.radii ** 2)[:, None, None].astype(np.float32)
-    KS.spherical_to_world((ds.result.phi * r2, ds.result.phia * r2), dom.centre, dom.frame, dom.params,
-                          dom.full, medium.origin, medium.voxel_size, (phi, phia), needed)
+@dataclass
+class PointFields:
+    """The walk's fields of every point light's spherical domain, for the renderer, which looks
+    them up per sample (kernels/render.py): r^2 phi and r^2 phia (smooth where phi has the
+    light's 1/r^2 spike; the renderer divides by each sample's own r^2).
+
+    fields: float32 (2, total): r^2 phi and r^2 phia of every domain (light, channel), each
+        block C-ordered (n_r, n_theta, n_phi);
+    offset: int64 (n_lights, n_channels): start of each block (-1 for other lights);
+    shape: int64 (n_lights, 3); params: float64 (n_lights, 6) (r0, dr, theta0, dtheta, phi0,
+    dphi); frame: float64 (n_lights, 3, 3); full: bool (n_lights,) (see SphericalDomain).
+    """
+
+    fields: np.ndarray
+    offset: np.ndarray
+    shape: np.ndarray
+    params: np.ndarray
+    frame: np.ndarray
+    full: np.ndarray
+
+
+def point_fields(domains, n_lights: int, n_channels: int) -> PointFields:
+    """Gather the point lights' domain solutions (propagate.DomainSolution) for the renderer."""
+    offset = -np.ones((n_lights, n_channels), np.int64)
+    shape = np.ones((n_lights, 3), np.int64)
+    params = np.ones((n_lights, 6))
+    frame = np.tile(np.eye(3), (n_lights, 1, 1))
+    full = np.zeros(n_lights, np.bool_)
+    blocks, total = [], 0
+    for ds in domains:
+        dom = ds.domain
+        if not isinstance(dom, SphericalDomain):
+            continue
+        i = ds.light_index
+        r2 = (dom.radii ** 2)[:, None, None]
+        blocks.append(np.stack([(ds.result.phi * r2).ravel(), (ds.result.phia * r2).ravel()]))
+        offset[i, ds.channel] = total
+        total += dom.n_cells
+        shape[i], params[i], frame[i], full[i] = dom.shape, dom.params, dom.frame, dom.full
+    fields = np.concatenate(blocks, axis=1).astype(np.float32) if blocks else np.zeros((2, 1), np.float32)
+    return PointFields(np.ascontiguousarray(fields), offset, shape, params, frame, full)
+
+
+def no_point_fields(n_lights: int = 0, n_channels: int = 1) -> PointFields:
+    return point_fields([], n_lights, n_channels)

@@ -198,14 +198,21 @@ def render_pixel(scene, solution, px, py):
         for l in range(len(solution.directions)):
             for c in range(n_ch):
                 E = solution.irradiance[l] if n_ch == 1 else np.eye(3)[c] * solution.irradiance[l]
-                p = float(trilinear(solution.phi[l, c], q))
+                w = solution.directions[l]
+                if solution.is_point[l]:      # its spherical domain holds r^2 phi; the lobe is radial
+                    sol = next(o for o in solution.domains if o.light_index == l and o.channel == c)
+                    r2 = (sol.domain.radii ** 2)[:, None, None]
+                    at_x = np.ones((1, 1, 1), bool)
+                    p, pa = (spherical_to_world(f * r2, sol.domain, x, np.zeros(3), at_x)[0, 0, 0]
+                             for f in (sol.result.phi, sol.result.phia))
+                    w = x - solution.positions[l]
+                    p, pa = p / np.dot(w, w), pa / np.dot(w, w)
+                    w = w / np.linalg.norm(w)
+                else:
+                    p = float(trilinear(solution.phi[l, c], q))
+                    pa = float(trilinear(solution.phia[l, c], q))
                 if p > 0:
-                    A = float(trilinear(solution.phia[l, c], q)) / p
-                    w = solution.directions[l]
-                    if solution.is_point[l]:          # fields hold r^2 phi; the lobe is radial
-                        w = x - solution.positions[l]
-                        p /= np.dot(w, w)
-                        w = w / np.linalg.norm(w)
+                    A = pa / p
                     mu = -np.dot(w, d)
                     Ls += p * hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)) * E
                 if solution.phid.shape[0]:             # the diffuse lobe, about its flux J
@@ -324,9 +331,9 @@ def domain_to_world(field, frame, origin, h, world_origin, voxel, needed):
 
 
 def spherical_to_world(field, dom, world_origin, voxel, needed):
-    """Twin of kernels.spherical.spherical_to_world for one field of a SphericalDomain: the
-    world voxel centres' (r, theta, phi) as continuous cell indices, trilinear, clamped in r
-    and theta, periodic in phi on a full sphere; 0 where not ``needed``."""
+    """One field of a SphericalDomain at world voxel centres (twin of the renderer's
+    kernels.render.point_lookup): their (r, theta, phi) as continuous cell indices, trilinear,
+    clamped in r and theta, periodic in phi on a full sphere; 0 where not ``needed``."""
     idx = np.indices(needed.shape).reshape(3, -1).T
     local = (world_origin + idx * voxel - dom.centre) @ dom.frame.T
     r = np.linalg.norm(local, axis=1)

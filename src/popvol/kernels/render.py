@@ -5,7 +5,8 @@ For a camera ray x(t) = c + t v:
   L_s(x, w_o) = sigma_s(x) sum_l E_l phi_l(x) f_hg(d_l . w_o; g(x) A_l(x))
 where phi_l is the light's fluence per unit irradiance and A_l = phia_l / phi_l its lobe's
 anisotropy (a point light: E_l is its intensity, d_l = (x - p_l) / r the direction from the
-light and phi_l = (r^2 phi_l) / r^2 with r^2 phi_l the stored field, see popvol/spherical.py); f_hg(.; g A) is the exact convolution of the lobe HG_A with the phase HG_g
+light, and phi_l and A_l are looked up in the light's spherical domain at the sample, where
+r^2 phi_l is stored: phi_l = (r^2 phi_l) / r^2, see popvol/spherical.py); f_hg(.; g A) is the exact convolution of the lobe HG_A with the phase HG_g
 (supplement Eq. 3). Each march segment of length ds uses sigma_t at a jittered point inside
 it and integrates T_v exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
 """
@@ -15,6 +16,7 @@ import numba as nb
 import numpy as np
 
 from .sampling import corner_weights
+from .spherical import spherical_index
 
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 MAX_DIFFUSE_ANISOTROPY = 0.5   # |J| / phi at a Marshak (vacuum) boundary, where diffusion's light
@@ -59,6 +61,34 @@ def _interp(grid, i0, i1, j0, j1, k0, k1, fx, fy, fz):
     c10 = grid[i1, j0, k0] * (1 - fz) + grid[i1, j0, k1] * fz
     c11 = grid[i1, j1, k0] * (1 - fz) + grid[i1, j1, k1] * fz
     return (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def point_lookup(fields, off, shape, q0, q1, q2, full):
+    """(r^2 phi, r^2 phia) of a point light's spherical block (fields[:, off:], C-ordered
+    ``shape``) at continuous cell index (q0, q1, q2): trilinear, clamped in r and theta,
+    periodic in phi on a full sphere (NumPy twin: kernels.reference.spherical_to_world)."""
+    n0, n1, n2 = shape[0], shape[1], shape[2]
+    k0, k1, fk = corner_weights(q0, n0)
+    i0, i1, fi = corner_weights(q1, n1)
+    if full:
+        jf = math.floor(q2)
+        fj = q2 - jf
+        j0 = int(jf) % n2
+        j1 = (j0 + 1) % n2
+    else:
+        j0, j1, fj = corner_weights(q2, n2)
+    out0 = 0.0
+    out1 = 0.0
+    for a in range(8):
+        k = k1 if a & 4 else k0
+        i = i1 if a & 2 else i0
+        j = j1 if a & 1 else j0
+        w = (fk if a & 4 else 1.0 - fk) * (fi if a & 2 else 1.0 - fi) * (fj if a & 1 else 1.0 - fj)
+        idx = off + (k * n1 + i) * n2 + j
+        out0 += w * fields[0, idx]
+        out1 += w * fields[1, idx]
+    return out0, out1
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -130,7 +160,8 @@ def background_radiance(bg, d, out):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi,
-                  phi, phia, phid, flux, light_dir, irradiance, light_pos, is_point, background,
+                  phi, phia, phid, flux, light_dir, irradiance, light_pos, is_point, p_fields,
+                  p_offset, p_shape, p_params, p_frame, p_full, background,
                   cam_origin, cam_basis, tan_half, width, height,
                   step, spp, seed, jitter, out):
     """Render into ``out`` float32 (height, width, 3), linear radiance.
@@ -142,7 +173,8 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
     phid, flux: the diffuse lobe's fluence (n_lights, n_channels, ...) and world flux vector
     (n_lights, n_channels, 3, ...), or arrays with n_lights = 0 when there is no diffusion stage;
     light_dir, irradiance: float64 (n_lights, 3); light_pos float64 (n_lights, 3) and is_point
-    bool (n_lights,): point lights (their phi, phia hold r^2 phi); background: float32 (1, 1, 3) (a constant)
+    bool (n_lights,): point lights, whose walk fields are p_fields .. p_full (the arrays of
+    spherical.PointFields) instead of phi, phia; background: float32 (1, 1, 3) (a constant)
     or (H, 2H, 3) (a lat-long environment map, see background_radiance);
     cam_basis rows forward, right, up; step in world units; jitter: random sub-pixel and
     along-ray offsets (False: pixel centres and segment midpoints, for tests).
@@ -210,21 +242,32 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
                     ls[1] = 0.0
                     ls[2] = 0.0
                     for l in range(n_lights):
+                        point = is_point[l]
                         inv_r2 = 1.0
-                        if is_point[l]:
-                            rx = cam_origin[0] + ts * d[0] - light_pos[l, 0]
-                            ry = cam_origin[1] + ts * d[1] - light_pos[l, 1]
-                            rz = cam_origin[2] + ts * d[2] - light_pos[l, 2]
-                            r2 = max(rx * rx + ry * ry + rz * rz, 1e-30)
-                            inv_r2 = 1.0 / r2
-                            mu = -(rx * d[0] + ry * d[1] + rz * d[2]) * math.sqrt(inv_r2)
+                        q0 = q1 = q2 = 0.0
+                        if point:
+                            wx = cam_origin[0] + ts * d[0]
+                            wy = cam_origin[1] + ts * d[1]
+                            wz = cam_origin[2] + ts * d[2]
+                            q0, q1, q2, r = spherical_index(light_pos[l], p_frame[l], p_params[l],
+                                                           p_full[l], wx, wy, wz)
+                            r = max(r, 1e-15)
+                            inv_r2 = 1.0 / (r * r)
+                            mu = -((wx - light_pos[l, 0]) * d[0] + (wy - light_pos[l, 1]) * d[1]
+                                   + (wz - light_pos[l, 2]) * d[2]) / r
                         else:
                             mu = -(light_dir[l, 0] * d[0] + light_dir[l, 1] * d[1] + light_dir[l, 2] * d[2])
                         for c in range(n_ch):
-                            p = _interp(phi[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+                            pa = 0.0
+                            if point:
+                                p, pa = point_lookup(p_fields, p_offset[l, c], p_shape[l], q0, q1, q2, p_full[l])
+                            else:
+                                p = _interp(phi[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
                             val = 0.0
                             if p > 0.0:
-                                A = _interp(phia[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz) / p
+                                if not point:
+                                    pa = _interp(phia[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+                                A = pa / p
                                 p *= inv_r2
                                 gA = gg * A
                                 if gA > 0.9999:

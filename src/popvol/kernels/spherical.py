@@ -30,7 +30,7 @@ import numpy as np
 
 from .propagation import (ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap,
                           split, total_energy)
-from .sampling import corner_weights, trilinear, trilinear_clamped
+from .sampling import trilinear, trilinear_clamped
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -84,41 +84,6 @@ def spherical_index(centre, frame, params, full, wx, wy, wz):
     q1 = (t - params[2]) / params[3] - 0.5
     q2 = (p - params[4]) / params[5] - 0.5
     return q0, q1, q2, r
-
-
-@nb.njit(parallel=True, fastmath=True, cache=True)
-def spherical_to_world(fields, centre, frame, params, full, world_origin, voxel, outs, needed):
-    """Sample a spherical domain's fields (a tuple of (n_r, n_theta, n_phi) arrays) at the
-    centres of world voxels where ``needed`` is set, into ``outs`` (a tuple of (nx, ny, nz)
-    arrays, not written elsewhere: allocate them with zeros): trilinear in (r, theta, phi)
-    index space, clamped to the edge cells, periodic in phi on a full sphere."""
-    nx, ny, nz = needed.shape
-    n0, n1, n2 = fields[0].shape
-    for x in nb.prange(nx):
-        for y in range(ny):
-            for z in range(nz):
-                if not needed[x, y, z]:
-                    continue
-                q0, q1, q2, _ = spherical_index(centre, frame, params, full,
-                                                world_origin[0] + x * voxel[0],
-                                                world_origin[1] + y * voxel[1],
-                                                world_origin[2] + z * voxel[2])
-                k0, k1, fk = corner_weights(q0, n0)
-                i0, i1, fi = corner_weights(q1, n1)
-                if full:
-                    jf = math.floor(q2)
-                    fj = q2 - jf
-                    j0 = int(jf) % n2
-                    j1 = (j0 + 1) % n2
-                else:
-                    j0, j1, fj = corner_weights(q2, n2)
-                for m in range(len(fields)):
-                    f = fields[m]
-                    c00 = f[k0, i0, j0] * (1 - fj) + f[k0, i0, j1] * fj
-                    c01 = f[k0, i1, j0] * (1 - fj) + f[k0, i1, j1] * fj
-                    c10 = f[k1, i0, j0] * (1 - fj) + f[k1, i0, j1] * fj
-                    c11 = f[k1, i1, j0] * (1 - fj) + f[k1, i1, j1] * fj
-                    outs[m][x, y, z] = (c00 * (1 - fi) + c01 * fi) * (1 - fk) + (c10 * (1 - fi) + c11 * fi) * fk
 
 
 @nb.njit(fastmath=True, cache=True)
