@@ -92,9 +92,11 @@ def render(scene, output, exr, width, height, resolution, solver, rule, decay, i
                "method": vars(sc.method), "seconds": seconds, "domains": info["domains"]}
         Path(stats).write_text(json.dumps(doc, indent=2))
     its = ", ".join(str(d["iterations"]) for d in info["domains"])
+    # point lights always sweep (spherical.py)
+    solvers = "/".join(sorted({"sweep" if d["type"] == "point" else sc.method.solver for d in info["domains"]}))
     click.echo(f"{output}: {sc.camera.width}x{sc.camera.height} in {seconds['total']:.2f} s "
                f"(load {t_load:.2f}, resample {seconds['resample']:.2f}, propagate {seconds['propagate']:.2f} "
-               f"[{sc.method.solver}, {its} iterations]"
+               f"[{solvers}, {its} iterations]"
                + (f", diffusion {seconds['diffusion']:.2f}" if sc.method.isotropic == "diffusion" else "")
                + f", render {t_render:.2f})")
 
