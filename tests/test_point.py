@@ -1,7 +1,7 @@
 """Point lights: the spherical domain, its propagation kernel, fields and rendering."""
 import numpy as np
 import pytest
-from scipy.ndimage import map_coordinates
+from brute import density_sampler, view_march
 
 from popvol import PopvolError, hg, scene_from_dict
 from popvol.camera import Camera
@@ -159,30 +159,9 @@ def test_budget_balances_with_empty_cells_and_the_diffusion_stage(where):
 def single_scattering_point(scene, n_steps=300, n_light_steps=150):
     """Brute force at pixel centres: L = int T_v sigma_s I T_l(x) / |x - p|^2 f_hg(mu; g) dt, with
     T_l the transmittance from the light to x along the segment (black background)."""
-    med, cam, light = scene.medium, scene.camera, scene.lights[0]
-    lo, hi = med.bounds
-    n = np.asarray(med.shape)
-
-    def density(p):
-        q = (p - med.origin) / med.voxel_size
-        inside = np.all((q >= -0.5) & (q <= n - 0.5), axis=-1)
-        q = np.clip(q, 0, n - 1)
-        v = map_coordinates(med.density, q.reshape(-1, 3).T, order=1, mode="nearest").reshape(q.shape[:-1])
-        return np.where(inside, v, 0.0)
-
-    fwd, right, up = cam.basis()
-    t = np.tan(np.radians(cam.fov) / 2)
-    px, py = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
-    d = (fwd + ((2 * px / cam.width - 1) * t * cam.width / cam.height)[..., None] * right
-         + ((1 - 2 * py / cam.height) * t)[..., None] * up)
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta, tb = (lo - cam.origin) / d, (hi - cam.origin) / d
-    t0 = np.clip(np.nanmax(np.minimum(ta, tb), axis=-1), 0, None)
-    t1 = np.maximum(np.nanmin(np.maximum(ta, tb), axis=-1), t0)
-    ts = t0[..., None] + (np.arange(n_steps) + 0.5) / n_steps * (t1 - t0)[..., None]
-    dt = ((t1 - t0) / n_steps)[..., None]
-    pts = cam.origin + ts[..., None] * d[..., None, :]
+    med, light = scene.medium, scene.lights[0]
+    density = density_sampler(med)
+    d, pts, dt = view_march(scene, n_steps)
     rho = density(pts)
     to_x = pts - light.position
     r = np.linalg.norm(to_x, axis=-1)

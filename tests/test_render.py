@@ -2,7 +2,7 @@
 limit against single scattering computed independently by brute force."""
 import numpy as np
 import pytest
-from scipy.ndimage import map_coordinates
+from brute import density_sampler, view_march
 
 from popvol import hg
 from popvol.camera import Camera
@@ -33,33 +33,10 @@ def single_scattering(scene, n_steps=400, n_light_steps=200):
     """Brute-force L = int T_v sigma_s E T_light f_hg(mu; g) dt + T_v L_bg at pixel centres,
     sigma_t by scipy's linear interpolation clamped to the edge inside the medium's cells; each
     colour channel with its own sigma_t and albedo (constant optics)."""
-    med, cam, light = scene.medium, scene.camera, scene.lights[0]
+    med, light = scene.medium, scene.lights[0]
     lo, hi = med.bounds
-    n = np.asarray(med.shape)
-
-    def density(p):
-        q = (p - med.origin) / med.voxel_size
-        inside = np.all((q >= -0.5) & (q <= n - 0.5), axis=-1)
-        q = np.clip(q, 0, n - 1)
-        v = map_coordinates(med.density, q.reshape(-1, 3).T, order=1, mode="nearest").reshape(q.shape[:-1])
-        return np.where(inside, v, 0.0)
-
-    fwd, right, up = cam.basis()
-    t = np.tan(np.radians(cam.fov) / 2)
-    px, py = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
-    sx = (2 * px / cam.width - 1) * t * cam.width / cam.height
-    sy = (1 - 2 * py / cam.height) * t
-    d = fwd + sx[..., None] * right + sy[..., None] * up
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ta, tb = (lo - cam.origin) / d, (hi - cam.origin) / d
-    t0 = np.clip(np.nanmax(np.minimum(ta, tb), axis=-1), 0, None)
-    t1 = np.nanmin(np.maximum(ta, tb), axis=-1)
-    t1 = np.maximum(t1, t0)
-    u = (np.arange(n_steps) + 0.5) / n_steps
-    ts = t0[..., None] + u * (t1 - t0)[..., None]                  # (H, W, S)
-    dt = ((t1 - t0) / n_steps)[..., None]
-    pts = cam.origin + ts[..., None] * d[..., None, :]
+    density = density_sampler(med)
+    d, pts, dt = view_march(scene, n_steps)
     rho = density(pts)
     # transmittance toward the light: march from each point against the light direction
     ld = -light.direction

@@ -23,6 +23,16 @@ def _floats(value, name: str, source: str) -> np.ndarray:
         raise PopvolError(f"{source}: light {name} must be numbers, got {value!r}") from None
 
 
+def _rgb_power(value, name: str, source: str) -> np.ndarray:
+    """float64 (3,) from 1 or 3 finite numbers >= 0 (a light's irradiance or intensity)."""
+    e = _floats(value, name, source)
+    if e.ndim == 0:
+        e = np.full(3, float(e))
+    if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
+        raise PopvolError(f"{source}: light {name} must be 1 or 3 finite numbers >= 0, got {value!r}")
+    return e
+
+
 @dataclass
 class DirectionalLight:
     """Collimated light from infinitely far away.
@@ -46,12 +56,7 @@ class DirectionalLight:
         if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
             raise PopvolError(f"{self.source}: light direction must be 3 finite numbers, not all zero, got {self.direction!r}")
         self.direction = d / np.linalg.norm(d)
-        e = _floats(self.irradiance, "irradiance", self.source)
-        if e.ndim == 0:
-            e = np.full(3, float(e))
-        if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
-            raise PopvolError(f"{self.source}: light irradiance must be 1 or 3 finite numbers >= 0, got {self.irradiance!r}")
-        self.irradiance = e
+        self.irradiance = _rgb_power(self.irradiance, "irradiance", self.source)
         if not (np.isfinite(self.a0) and 0.0 <= self.a0 <= 1.0):
             raise PopvolError(f"{self.source}: light a0 = {self.a0!r} is outside [0, 1]")
         self.a0 = float(self.a0)
@@ -82,12 +87,7 @@ class PointLight:
         if p.shape != (3,) or not np.all(np.isfinite(p)):
             raise PopvolError(f"{self.source}: light position must be 3 finite numbers, got {self.position!r}")
         self.position = p
-        e = _floats(self.intensity, "intensity", self.source)
-        if e.ndim == 0:
-            e = np.full(3, float(e))
-        if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e < 0):
-            raise PopvolError(f"{self.source}: light intensity must be 1 or 3 finite numbers >= 0, got {self.intensity!r}")
-        self.intensity = e
+        self.intensity = _rgb_power(self.intensity, "intensity", self.source)
 
     @property
     def power(self) -> np.ndarray:

@@ -320,12 +320,19 @@ def resample_medium(medium: Medium, domain: DirectionalDomain, channel: int = 0
         resample(values, 1.0 / medium.voxel_size, medium.origin, domain.frame, domain.origin,
                  domain.h, domain.shape, clamp, out)
         return out
+    return optics(medium, grid, domain.shape, channel)
+
+
+def optics(medium: Medium, grid, shape, channel: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """sigma_t, sigma_s, g (float32 ``shape``) of colour ``channel`` at a domain's cells, where
+    ``grid(values, clamp)`` samples a world voxel grid at those cells (0 outside the grid, or
+    clamped to its edge if ``clamp``: per-voxel albedo and g, where the density is 0 anyway)."""
     sigma_t = grid(medium.density, False) * np.float32(medium.scale[channel])
     if medium.albedo_per_voxel:
         sigma_s = sigma_t * grid(medium.albedo, True)
     else:
         sigma_s = sigma_t * np.float32(medium.albedo[channel])
-    g = grid(medium.g, True) if medium.g_per_voxel else np.full(domain.shape, medium.g, np.float32)
+    g = grid(medium.g, True) if medium.g_per_voxel else np.full(shape, medium.g, np.float32)
     return sigma_t, sigma_s, g
 
 

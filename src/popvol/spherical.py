@@ -31,7 +31,7 @@ from .kernels import spherical as KS
 from .lights import PointLight
 from .medium import Medium
 from .propagate import (Budget, DomainSolution, PropagationResult, check_decay, default_max_iterations,
-                        medium_factors, split_table32, sweep_until_converged)
+                        medium_factors, optics, split_table32, sweep_until_converged)
 from .propagate import resample_medium as resample_rectilinear
 from .scene import Method
 
@@ -44,13 +44,7 @@ def resample_medium(medium: Medium, dom: SphericalDomain, channel: int = 0):
         KS.resample_spherical(values, 1.0 / medium.voxel_size, medium.origin, dom.centre, dom.frame,
                               dom.params, dom.shape, clamp, out)
         return out
-    sigma_t = grid(medium.density, False) * np.float32(medium.scale[channel])
-    if medium.albedo_per_voxel:
-        sigma_s = sigma_t * grid(medium.albedo, True)
-    else:
-        sigma_s = sigma_t * np.float32(medium.albedo[channel])
-    g = grid(medium.g, True) if medium.g_per_voxel else np.full(dom.shape, medium.g, np.float32)
-    return sigma_t, sigma_s, g
+    return optics(medium, grid, dom.shape, channel)
 
 
 def transfer_lengths(dom: SphericalDomain):
