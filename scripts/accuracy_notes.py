@@ -46,11 +46,11 @@ def main(out=ROOT / "docs" / "ACCURACY_NOTES.md"):
     lines.append(f"| Monte Carlo | - | {mc['transmitted']:.4f} | {mc['reflected']:.4f} | {mc['side']:.4f} | "
                  f"{mc['absorbed']:.4f} | {mc['r2_mean']:.4f} | - |")
     variants = [("moment", "poisson", "walk", 0), ("paper", "paper", "walk", 0),
-                ("moment", "poisson", "diffusion", 0.05), ("moment", "poisson", "diffusion", 0.5)]
+                ("moment", "poisson", "diffusion", 2.0), ("moment", "poisson", "diffusion", 3.0)]
     for rule, decay, iso, eps in variants:
         for n in (16, 32, 64):
             p = pop_beam(n, rule, decay, isotropic=iso, handover=eps)
-            name = f"`{rule}` + `{decay}`" + (f" + diffusion (hand-over {eps:g})" if iso == "diffusion" else "")
+            name = f"`{rule}` + `{decay}`" + (f" + diffusion (hand-over scale {eps:g})" if iso == "diffusion" else "")
             lines.append(f"| {name} | {n}^3 | {p['transmitted']:.4f} | {p['reflected']:.4f} | "
                          f"{p['side']:.4f} | {p['absorbed']:.4f} | {p['r2_mean']:.4f} | {p['iterations']} |")
     lines += ["", "**Neither rule converges under grid refinement.** With `moment`, light that moves",
@@ -62,11 +62,11 @@ def main(out=ROOT / "docs" / "ACCURACY_NOTES.md"):
               "in the cube ever longer, so absorption grows with refinement. This is the cause of the",
               "too-bright, resolution-dependent clouds in METHOD.md.", "",
               "**With the isotropic stage done as diffusion** (`method.isotropic = \"diffusion\"`, the",
-              "default; popvol/diffusion.py) light whose lobe has spread below the hand-over anisotropy",
-              "leaves the walk for a diffusion solve with the physical coefficient 1 / (3 sigma_tr):",
-              "the fractions then change little under refinement and the side escape is 4-8x closer to",
-              "Monte Carlo. A lower hand-over (0.05, the default, chosen on the images of",
-              "docs/ACCURACY.md) keeps more light in the walk and sends less out of the sides than 0.5.",
+              "default; popvol/diffusion.py) light whose lobe has spread below the hand-over threshold",
+              "handover_scale * (1 - exp(-sigma_tr h)) of its cell leaves the walk for a diffusion",
+              "solve with the physical coefficient 1 / (3 sigma_tr): the fractions then change little",
+              "under refinement and the side escape is 4-8x closer to Monte Carlo. The default scale 2",
+              "(chosen on the images of docs/ACCURACY.md) keeps a little more light in the walk than 3.",
               "",
               f"_Generated in {time.time() - t0:.0f} s._", ""]
     out.write_text("\n".join(lines))

@@ -72,6 +72,8 @@ LIGHT = '[[lights]]\ndirection = [0, -1, 0]\n'
     (MEDIUM + LIGHT + '[method]\nresolution = 100000\n', ["method.resolution", "4096"]),
     (MEDIUM + LIGHT + '[method]\nresolution = 4096\n', ["method.resolution", "GiB"]),
     (MEDIUM + 'albdo = 0.5\n' + LIGHT, ["unknown key medium.albdo"]),
+    (MEDIUM + LIGHT + '[method]\nhandover = 0.05\n', ["method.handover", "method.handover_scale"]),
+    (MEDIUM + LIGHT + '[method]\nhandover_scale = -1\n', ["method.handover_scale", "[0, 100]"]),
     ('[medium]\ntype = "file"\nfile = "nope.npz"\n' + LIGHT, ["nope.npz"]),
     (MEDIUM, ["lights"]),
     ('this is not toml', ["invalid TOML"]),

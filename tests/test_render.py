@@ -141,7 +141,7 @@ def test_render_kernel_equals_numpy_twin(isotropic, optics):
         scene.medium = Medium(med.density, med.voxel_size, med.origin, scale=med.scale * [1.0, 0.5, 0.25],
                               albedo=[0.9, 0.8, 0.6], g=g)
     scene.method.isotropic = isotropic
-    scene.method.handover = 0.8
+    scene.method.handover_scale = 20.0
     sol = solve(scene)
     if isotropic == "diffusion":
         assert sol.phid.max() > 0 and np.abs(sol.flux).max() > 0

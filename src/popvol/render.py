@@ -34,7 +34,8 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) 
     # rows go to threads one at a time: rows through the medium cost far more than the sky's
     with numba.parallel_chunksize(1):
         render_kernel(med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
-                      med.origin, med.voxel_size, lo, hi, solution.phi, solution.phia, solution.phid, solution.flux,
+                      med.origin, med.voxel_size, lo, hi, solution.phi, solution.phia, solution.direct,
+                      solution.phid, solution.flux,
                       np.ascontiguousarray(solution.directions, np.float64),
                       np.ascontiguousarray(solution.irradiance, np.float64),
                       np.ascontiguousarray(solution.positions, np.float64), solution.is_point,

@@ -36,7 +36,8 @@ class Method:
     isotropic: what happens to light whose lobe has spread: "walk" (it keeps walking cell by
         cell, the papers' POP) or "diffusion" (it leaves the walk for a diffusion solve with the
         physical coefficient 1 / (3 sigma_tr); see popvol/diffusion.py).
-    handover: with "diffusion", the |anisotropy| below which a packet is handed over.
+    handover_scale: with "diffusion", a packet leaves the walk when its |a| <
+        handover_scale * (1 - exp(-sigma_tr s)), s the cell size (propagate.handover_factor).
     diffusion_resolution: cells along the longest side of the diffusion grid (blocks of the
         light's domain; 0 = the domain's own cells).
     environment_resolution: ``resolution`` of the domains of an environment's K lights (they
@@ -54,7 +55,7 @@ class Method:
     rule: str = "moment"
     decay: str = "poisson"
     isotropic: str = "diffusion"
-    handover: float = 0.05
+    handover_scale: float = 2.0
     diffusion_resolution: int = 64
     environment_resolution: int = 64
     tolerance: float = 1e-3
@@ -70,7 +71,7 @@ class Method:
         _choice(self.rule, "method.rule", src, RULES)
         _choice(self.decay, "method.decay", src, DECAYS)
         _choice(self.isotropic, "method.isotropic", src, ISOTROPIC)
-        _float_in(self.handover, "method.handover", src, 0.0, 1.0)
+        _float_in(self.handover_scale, "method.handover_scale", src, 0.0, 100.0)
         _int_in(self.diffusion_resolution, "method.diffusion_resolution", src, 0, 4096)
         if self.environment_resolution != 0:
             _int_in(self.environment_resolution, "method.environment_resolution", src, 2, 4096)
@@ -299,6 +300,10 @@ def _method_fields(m, src: str) -> dict:
     if not isinstance(m, dict):
         raise PopvolError(f"{src}: method must be a table")
     known = set(Method.__dataclass_fields__)
+    if "handover" in m:
+        raise PopvolError(f"{src}: method.handover (a fixed |a| threshold) was replaced by "
+                          "method.handover_scale (the threshold per cell is handover_scale * "
+                          "(1 - exp(-sigma_tr s)), default 2; see docs/SCENE.md): remove the key or rename it")
     _known(m, known, "method.", src)
     return dict(m)
 

@@ -31,7 +31,8 @@ from .kernels import spherical as KS
 from .lights import PointLight
 from .medium import Medium
 from .propagate import (Budget, DomainSolution, PropagationResult, check_decay, default_max_iterations,
-                        medium_factors, optics, split_table32, sweep_until_converged)
+                        direct_fluence,
+                        handover_factor, medium_factors, optics, split_table32, sweep_until_converged)
 from .propagate import resample_medium as resample_rectilinear
 from .scene import Method
 
@@ -83,11 +84,12 @@ def propagate_point(sigma_t, sigma_s, g, dom: SphericalDomain, method: Method, p
     phi = np.zeros(shape, np.float32)
     phia = np.zeros(shape, np.float32)
     if method.isotropic == "diffusion":
-        diffusive = (sigma_s > 0) & (sigma_t > 0)
+        # the mean of the radial and the two lateral step lengths
+        diffusive = handover_factor(sigma_t, sigma_s, g, (s_r + s_t + s_p) / 3.0)
         Q = np.zeros((2,) + shape, np.float32)
-        eps = float(method.handover)
+        eps = float(method.handover_scale)
     else:
-        diffusive = np.zeros((1, 1, 1), np.bool_)
+        diffusive = np.zeros((1, 1, 1), np.float32)
         Q = np.zeros((2, 1, 1, 1), np.float32)
         eps = -1.0
     bands = KP.band_edges(shape[1])
@@ -155,8 +157,11 @@ def solve_point_light(medium: Medium, light: PointLight, method: Method, progres
     sigma_t, sigma_s, g = resample_medium(medium, dom, channel)
     t1 = time.perf_counter()
     result, Q0 = propagate_point(sigma_t, sigma_s, g, dom, method, progress)
+    # the unscattered light, r^2 phi_dir = exp(-tau) per unit intensity (tau along the ray from
+    # the light, which crosses the shells along k: the same sum as a sun's along its axis)
+    direct = direct_fluence(sigma_t, dom.dr) / (dom.radii ** 2)[:, None, None]
     del sigma_t, sigma_s, g
-    ds = DomainSolution(light, dom, result, t1 - t0, channel)
+    ds = DomainSolution(light, dom, result, t1 - t0, channel, direct=direct.astype(np.float32))
     if method.isotropic == "diffusion":
         t2 = time.perf_counter()
         ds.diffusion_domain, _ = diffuse_point(Q0, medium, dom, method, channel, result)
@@ -199,11 +204,12 @@ def point_fields(domains, n_lights: int, n_channels: int) -> PointFields:
             continue
         i = ds.light_index
         r2 = (dom.radii ** 2)[:, None, None]
-        blocks.append(np.stack([(ds.result.phi * r2).ravel(), (ds.result.phia * r2).ravel()]))
+        blocks.append(np.stack([(ds.result.phi * r2).ravel(), (ds.result.phia * r2).ravel(),
+                                (ds.direct * r2).ravel()]))
         offset[i, ds.channel] = total
         total += dom.n_cells
         shape[i], params[i], frame[i], full[i] = dom.shape, dom.params, dom.frame, dom.full
-    fields = np.concatenate(blocks, axis=1).astype(np.float32) if blocks else np.zeros((2, 1), np.float32)
+    fields = np.concatenate(blocks, axis=1).astype(np.float32) if blocks else np.zeros((3, 1), np.float32)
     return PointFields(np.ascontiguousarray(fields), offset, shape, params, frame, full)
 
 

@@ -57,10 +57,11 @@ def split(table, w, wa, moment):
 @nb.njit(inline="always", cache=True)
 def _hands_over(handover, diffusive, Q, k, i, j, w, wa):
     """The isotropic stage (METHOD.md step 7, done as diffusion): a packet at a cell centre whose
-    lobe has spread below |a| < handover, in a cell of the diffusion region, leaves the walk:
+    lobe has spread below |a| < handover * diffusive[k, i, j] (the cell's threshold factor, see
+    propagate.handover_factor; 0 outside the diffusion region) leaves the walk:
     its power and first moment go to Q[0], Q[1] (the diffusion source, see diffusion.py).
     ``handover`` <= 0 turns this off (``diffusive`` and ``Q`` are then not read)."""
-    if handover > 0.0 and diffusive[k, i, j] and abs(wa) < handover * w:
+    if handover > 0.0 and abs(wa) < handover * diffusive[k, i, j] * w:
         Q[0, k, i, j] += w
         Q[1, k, i, j] += wa
         return True

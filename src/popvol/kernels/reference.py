@@ -56,7 +56,7 @@ def hand_over(W, Wa, handover, diffusive, Q):
     with |a| < handover in diffusive cells move into Q[0], Q[1]; returns what stays."""
     if handover <= 0:
         return W, Wa
-    leave = diffusive & (np.abs(Wa) < handover * W)
+    leave = np.abs(Wa) < handover * diffusive * W
     Q[0] += np.where(leave, W, 0.0)
     Q[1] += np.where(leave, Wa, 0.0)
     return np.where(leave, 0.0, W), np.where(leave, 0.0, Wa)
@@ -110,7 +110,7 @@ def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, ph
                     wa = Ra[k, i, j] * th * dh
                     tally[ABSORBED] += R[k, i, j] * (1 - th)          # the receiver's half step
                     R[k, i, j] = Ra[k, i, j] = 0.0
-                    if handover > 0 and diffusive[k, i, j] and abs(wa) < handover * w:
+                    if handover > 0 and abs(wa) < handover * diffusive[k, i, j] * w:
                         Q[0, k, i, j] += w
                         Q[1, k, i, j] += wa
                         continue
@@ -203,14 +203,20 @@ def render_pixel(scene, solution, px, py):
                     sol = next(o for o in solution.domains if o.light_index == l and o.channel == c)
                     r2 = (sol.domain.radii ** 2)[:, None, None]
                     at_x = np.ones((1, 1, 1), bool)
-                    p, pa = (spherical_to_world(f * r2, sol.domain, x, np.zeros(3), at_x)[0, 0, 0]
-                             for f in (sol.result.phi, sol.result.phia))
+                    p, pa, p_dir = (spherical_to_world(f * r2, sol.domain, x, np.zeros(3), at_x)[0, 0, 0]
+                                    for f in (sol.result.phi, sol.result.phia, sol.direct))
                     w = x - solution.positions[l]
-                    p, pa = p / np.dot(w, w), pa / np.dot(w, w)
+                    p, pa, p_dir = p / np.dot(w, w), pa / np.dot(w, w), p_dir / np.dot(w, w)
                     w = w / np.linalg.norm(w)
                 else:
                     p = float(trilinear(solution.phi[l, c], q))
                     pa = float(trilinear(solution.phia[l, c], q))
+                    p_dir = float(trilinear(solution.direct[l, c], q))
+                # the unscattered part (a delta lobe along w) is lit apart from the rest
+                p_dir = min(p_dir, p) if p > 0 else 0.0
+                if p_dir > 0:
+                    Ls += p_dir * hg.f_hg(-np.dot(w, d), np.clip(g, -0.9999, 0.9999)) * E
+                    p, pa = p - p_dir, pa - p_dir
                 if p > 0:
                     A = pa / p
                     mu = -np.dot(w, d)
@@ -271,7 +277,7 @@ def sweep_spherical(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, rule, full, forward, flip, w_
                     if w <= w_min:
                         continue
                     R[k, i, j] = Ra[k, i, j] = 0.0
-                    if handover > 0 and diffusive[k, i, j] and abs(wa) < handover * w:
+                    if handover > 0 and abs(wa) < handover * diffusive[k, i, j] * w:
                         Q[0, k, i, j] += w
                         Q[1, k, i, j] += wa
                         continue

@@ -6,8 +6,17 @@ For a camera ray x(t) = c + t v:
 where phi_l is the light's fluence per unit irradiance and A_l = phia_l / phi_l its lobe's
 anisotropy (a point light: E_l is its intensity, d_l = (x - p_l) / r the direction from the
 light, and phi_l and A_l are looked up in the light's spherical domain at the sample, where
-r^2 phi_l is stored: phi_l = (r^2 phi_l) / r^2, see popvol/spherical.py); f_hg(.; g A) is the exact convolution of the lobe HG_A with the phase HG_g
-(supplement Eq. 3). Each march segment of length ds uses sigma_t at a jittered point inside
+r^2 phi_l is stored: phi_l = (r^2 phi_l) / r^2, see popvol/spherical.py); f_hg(.; g A) is the
+exact convolution of the lobe HG_A with the phase HG_g (supplement Eq. 3).
+
+A sun's fluence is a mixture: its unscattered light phi_dir = exp(-tau) (a delta lobe along
+d_l; propagate.direct_fluence) and the scattered rest. One HG lobe of the mixture's mean
+anisotropy understates what the mixture scatters sideways and back (HG(.; g A) is convex in A
+there), so the two are lit apart:
+  phi_l f_hg(.; g A_l)  ->  phi_dir f_hg(.; g) + (phi_l - phi_dir) f_hg(.; g A_rest),
+  A_rest = (phia_l - phi_dir) / (phi_l - phi_dir)
+(the same fluence and first moment). phi_dir is taken at most phi_l: the walk's fluence holds
+the unscattered light, and only interpolation across a shadow edge can put it below. Each march segment of length ds uses sigma_t at a jittered point inside
 it and integrates T_v exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
 """
 import math
@@ -65,7 +74,7 @@ def _interp(grid, i0, i1, j0, j1, k0, k1, fx, fy, fz):
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def point_lookup(fields, off, shape, q0, q1, q2, full):
-    """(r^2 phi, r^2 phia) of a point light's spherical block (fields[:, off:], C-ordered
+    """(r^2 phi, r^2 phia, r^2 phi_dir) of a point light's spherical block (fields[:, off:], C-ordered
     ``shape``) at continuous cell index (q0, q1, q2): trilinear, clamped in r and theta,
     periodic in phi on a full sphere (NumPy twin: kernels.reference.spherical_to_world)."""
     n0, n1, n2 = shape[0], shape[1], shape[2]
@@ -80,6 +89,7 @@ def point_lookup(fields, off, shape, q0, q1, q2, full):
         j0, j1, fj = corner_weights(q2, n2)
     out0 = 0.0
     out1 = 0.0
+    out2 = 0.0
     for a in range(8):
         k = k1 if a & 4 else k0
         i = i1 if a & 2 else i0
@@ -88,7 +98,8 @@ def point_lookup(fields, off, shape, q0, q1, q2, full):
         idx = off + (k * n1 + i) * n2 + j
         out0 += w * fields[0, idx]
         out1 += w * fields[1, idx]
-    return out0, out1
+        out2 += w * fields[2, idx]
+    return out0, out1, out2
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -160,7 +171,7 @@ def background_radiance(bg, d, out):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi,
-                  phi, phia, phid, flux, light_dir, irradiance, light_pos, is_point, p_fields,
+                  phi, phia, direct, phid, flux, light_dir, irradiance, light_pos, is_point, p_fields,
                   p_offset, p_shape, p_params, p_frame, p_full, background,
                   cam_origin, cam_basis, tan_half, width, height,
                   step, spp, seed, jitter, out):
@@ -170,6 +181,7 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
     albedo, g_grid: float32 grids (1,1,1) or density-shaped; albedo_rgb: float64 (3,), the
     albedo of channel c is albedo * albedo_rgb[c];
     phi, phia: float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit irradiance;
+    direct: the same shape: the unscattered part of phi (0 where a light has none);
     phid, flux: the diffuse lobe's fluence (n_lights, n_channels, ...) and world flux vector
     (n_lights, n_channels, 3, ...), or arrays with n_lights = 0 when there is no diffusion stage;
     light_dir, irradiance: float64 (n_lights, 3); light_pos float64 (n_lights, 3) and is_point
@@ -259,14 +271,23 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
                             mu = -(light_dir[l, 0] * d[0] + light_dir[l, 1] * d[1] + light_dir[l, 2] * d[2])
                         for c in range(n_ch):
                             pa = 0.0
+                            pdir = 0.0
                             if point:
-                                p, pa = point_lookup(p_fields, p_offset[l, c], p_shape[l], q0, q1, q2, p_full[l])
+                                p, pa, pdir = point_lookup(p_fields, p_offset[l, c], p_shape[l], q0, q1, q2,
+                                                           p_full[l])
                             else:
                                 p = _interp(phi[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
                             val = 0.0
                             if p > 0.0:
                                 if not point:
                                     pa = _interp(phia[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+                                    pdir = _interp(direct[l, c], i0, i1, j0, j1, k0, k1, fx, fy, fz)
+                                pdir = min(pdir, p)
+                                if pdir > 0.0:          # the unscattered light: a delta lobe
+                                    val = pdir * inv_r2 * f_hg(mu, max(min(gg, 0.9999), -0.9999))
+                                    p -= pdir
+                                    pa -= pdir
+                            if p > 0.0:
                                 A = pa / p
                                 p *= inv_r2
                                 gA = gg * A
@@ -274,7 +295,7 @@ def render_kernel(density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo,
                                     gA = 0.9999
                                 elif gA < -0.9999:
                                     gA = -0.9999
-                                val = p * f_hg(mu, gA)
+                                val += p * f_hg(mu, gA)
                             if has_diffuse:
                                 val += _diffuse_lobe(phid[l, c], flux[l, c], i0, i1, j0, j1, k0, k1,
                                                      fx, fy, fz, d, gg)
