@@ -5,8 +5,10 @@ cells in r, theta, phi, the principal ordinate radial) -> injection of unit inte
 light -> thresholded Gauss-Seidel sweeps along r (kernels/spherical.py) -> fluence phi and
 phi*A per cell -> the world grid. The isotropic stage ("diffusion") runs on a rectilinear grid
 over the medium: power handed over in the spherical cells is added to the grid cell holding
-each cell's centre (its first moment is left out: packets hand over at |a| < handover, so it
-is at most ``handover`` times the power; this is a small bias).
+each cell's centre (its first moment is left out: packets hand over at |a| < the cell's
+threshold, handover_scale (1 - exp(-sigma_tr s)), so it is at most that times the power: small
+in cells thin on the transport scale, a bias in thick ones, where light drifting outward is
+re-emitted isotropically).
 
 For rendering, the walk's fields stay in the spherical domain, multiplied by r^2 (r: distance
 to the light): r^2 phi is smooth where phi has the 1/r^2 spike of the light (in vacuum it is I,
