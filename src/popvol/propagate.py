@@ -503,13 +503,10 @@ def solve(scene: Scene, progress=None, reuse: Solution | None = None) -> Solutio
             t0 = time.perf_counter()
             d = ds.domain
             if not point:       # a point light's walk fields are looked up in its own domain
-                if ds.direct is None:
-                    domain_to_world((ds.result.phi, ds.result.phia), d.frame, d.origin, d.h, med.origin,
-                                    med.voxel_size, (phi[i, ch], phia[i, ch]), needed)
-                else:
-                    domain_to_world((ds.result.phi, ds.result.phia, ds.direct), d.frame, d.origin, d.h,
-                                    med.origin, med.voxel_size, (phi[i, ch], phia[i, ch], direct[i, ch]),
-                                    needed)
+                fields, outs = (ds.result.phi, ds.result.phia), (phi[i, ch], phia[i, ch])
+                if ds.direct is not None:        # a sun's unscattered part (environment lights: none)
+                    fields, outs = fields + (ds.direct,), outs + (direct[i, ch],)
+                domain_to_world(fields, d.frame, d.origin, d.h, med.origin, med.voxel_size, outs, needed)
             if diffusion:
                 dr = ds.result.diffusion
                 d = ds.diffusion_domain or d

@@ -89,8 +89,8 @@ def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out
     ``out`` float32 (6, n_d, n_u, n_v) receives the parts after the sender's half step:
     0 front, 1 front*a', 2 side (each), 3 side*a', 4 back, 5 back*a'. Parts that leave the
     domain are tallied; so is what the sender's half step absorbs. With ``handover`` > 0, a
-    packet in a ``diffusive`` cell whose |a| < handover leaves the walk into Q (see
-    :func:`_hands_over`).
+    packet whose |a| < handover * diffusive[cell] (the cell's threshold factor) leaves the walk
+    into Q (see :func:`_hands_over`).
     """
     n0, n1, n2 = W.shape
     refl = 0.0

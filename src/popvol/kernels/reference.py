@@ -53,7 +53,8 @@ def _move(e, m, Th, Dh, axis, step, periodic, tally, slot):
 
 def hand_over(W, Wa, handover, diffusive, Q):
     """The isotropic stage's hand-over (twin of propagation._hands_over), whole arrays: packets
-    with |a| < handover in diffusive cells move into Q[0], Q[1]; returns what stays."""
+    with |a| < handover * diffusive (the cells' threshold factors, 0 outside the diffusion
+    region) move into Q[0], Q[1]; returns what stays."""
     if handover <= 0:
         return W, Wa
     leave = np.abs(Wa) < handover * diffusive * W
@@ -212,14 +213,14 @@ def render_pixel(scene, solution, px, py):
                     p = float(trilinear(solution.phi[l, c], q))
                     pa = float(trilinear(solution.phia[l, c], q))
                     p_dir = float(trilinear(solution.direct[l, c], q))
+                mu = -np.dot(w, d)
                 # the unscattered part (a delta lobe along w) is lit apart from the rest
                 p_dir = min(p_dir, p) if p > 0 else 0.0
                 if p_dir > 0:
-                    Ls += p_dir * hg.f_hg(-np.dot(w, d), np.clip(g, -0.9999, 0.9999)) * E
+                    Ls += p_dir * hg.f_hg(mu, np.clip(g, -0.9999, 0.9999)) * E
                     p, pa = p - p_dir, pa - p_dir
                 if p > 0:
                     A = pa / p
-                    mu = -np.dot(w, d)
                     Ls += p * hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)) * E
                 if solution.phid.shape[0]:             # the diffuse lobe, about its flux J
                     pd = float(trilinear(solution.phid[l, c], q))

@@ -9,15 +9,17 @@ light, and phi_l and A_l are looked up in the light's spherical domain at the sa
 r^2 phi_l is stored: phi_l = (r^2 phi_l) / r^2, see popvol/spherical.py); f_hg(.; g A) is the
 exact convolution of the lobe HG_A with the phase HG_g (supplement Eq. 3).
 
-A sun's fluence is a mixture: its unscattered light phi_dir = exp(-tau) (a delta lobe along
+A sun's (or point light's) fluence is a mixture: its unscattered light phi_dir = exp(-tau) (a delta lobe along
 d_l; propagate.direct_fluence) and the scattered rest. One HG lobe of the mixture's mean
 anisotropy understates what the mixture scatters sideways and back (HG(.; g A) is convex in A
 there), so the two are lit apart:
   phi_l f_hg(.; g A_l)  ->  phi_dir f_hg(.; g) + (phi_l - phi_dir) f_hg(.; g A_rest),
   A_rest = (phia_l - phi_dir) / (phi_l - phi_dir)
 (the same fluence and first moment). phi_dir is taken at most phi_l: the walk's fluence holds
-the unscattered light, and only interpolation across a shadow edge can put it below. Each march segment of length ds uses sigma_t at a jittered point inside
-it and integrates T_v exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
+the unscattered light, and only interpolation across a shadow edge can put it below.
+
+Each march segment of length ds uses sigma_t at a jittered point inside it and integrates T_v
+exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
 """
 import math
 
