@@ -1,4 +1,4 @@
-"""The isotropic stage as a diffusion solve (METHOD.md step 7; issue "accuracy", candidate 1).
+"""The isotropic stage as a diffusion solve (docs/METHOD.md, "Diffusion stage").
 
 Why: once a cell's lobe has spread (|a| small), POP's six-neighbour walk moves it like a random
 walk whose step is the cell size, so its diffusion length follows the grid, not the transport
@@ -16,8 +16,8 @@ the domain faces and where the region ends, through the area of the region's smo
 the region's boundary is a staircase of cell faces whose area is |n_x| + |n_y| + |n_z| (the L1
 norm of the unit normal, 1 to sqrt(3)) times the surface's, so each boundary face of a cell
 leaks with the weight 1 / |n|_1, n the normal of the smoothed region mask there
-(:func:`boundary_weight`). Without it the diffuse light of the WDAS cloud leaked ~1.4x too fast
-(wdas_sun x0.66 -> x0.80 at 128 cells). On a homogeneous sphere whose fluence is set by its
+(:func:`boundary_weight`); without it the diffuse light leaks through up to sqrt(3) times the
+true area (about 1.4x on the WDAS cloud). On a homogeneous sphere whose fluence is set by its
 leak, the absorbed share comes out 4-6 % high with the weight and 5-15 % low without it
 (tests/test_diffusion.py, against the analytic solution). Solved by conjugate gradients
 (Jacobi preconditioner) in kernels/diffusion.py.
@@ -28,12 +28,11 @@ transport mean free path as long as the domain, so the thinnest fringes stay fin
 Rendering: the diffuse light is a second lobe beside the walk's, phi_d * HG(w . J/|J|; A) with
 J = -D grad phi_d the diffusion flux and A = min(|J| / phi_d, 1/2): the same fluence and first
 moment as the P1 radiance (phi_d + 3 J . w) / 4 pi up to |J| = phi_d / 2, the Marshak value at
-the region's boundary (where the light that the camera sees leaves), and never negative (a cap
-of 1/3, where P1 itself stays >= 0, left the sunlit faces of the WDAS cloud ~6 % darker). Its
-axis is J's own direction: light leaving a cloud sideways to the sun is seen leaving sideways
-(folding J onto the light's axis, as the walk's lobe is, lost much of the brightness of faces
-lit at grazing angles). Allowing A up to 1 made
-speckles where the fluence is spiky near hand-over cells.
+the region's boundary (where the light that the camera sees leaves), and never negative. The cap
+is 1/2 rather than 1/3 (where P1 itself stays >= 0), which would darken sunlit faces, and not 1,
+which makes speckles where the fluence is spiky near hand-over cells. The lobe's axis is J's own
+direction, not the light's axis as for the walk's lobe: light leaving a cloud sideways to the
+sun is seen leaving sideways, and faces lit at grazing angles keep their brightness.
 
 Biases (documented in the README): diffusion is wrong where the medium is thin on the scale of
 a transport mean free path (fringes, thin wisps) and near the lit faces; light leaking out of the
@@ -123,7 +122,7 @@ def solve_diffusion(Q0, Q1, sigma_t, sigma_s, g, h, rtol=1e-4, max_iterations=0,
     leaked = K.leaks(x, D, mask, h, bw)
     absorbed = float(np.sum(sah3 * x))
     # P1 flux J = -D grad phi (the source's own moment 3 D q1 is left out: it is spiky where
-    # packets cross the hand-over threshold, and made no measurable difference to the images)
+    # packets cross the hand-over threshold, and makes no measurable difference to the images)
     J = np.zeros((3,) + x.shape, np.float32)
     for axis in range(3):
         grad = np.gradient(x, h, axis=axis) if x.shape[axis] > 1 else np.zeros_like(x)
@@ -139,7 +138,7 @@ def boundary_weight(mask) -> np.ndarray:
     area of the smooth surface through it. 1 where the smoothed mask is flat or outside the
     region. Where the region is cut by the grid's own faces, its edges and corners get the
     weight of a rounded edge (0.71, 0.58) though the staircase is exact there (about 1 % on a
-    filled cube). (kernels/diffusion.boundary_weight; NumPy twin in kernels/reference.py.)"""
+    filled cube). (kernels/diffusion.boundary_weight; NumPy twin in tests/twins.py.)"""
     out = np.empty(mask.shape, np.float32)
     K.boundary_weight(np.ascontiguousarray(mask, np.bool_), out)
     return out

@@ -1,5 +1,6 @@
 """Environment light: a lat-long radiance map (or an analytic sky) seen as the background and
-decomposed into K directional lights for propagation (METHOD.md step 1).
+decomposed into K directional lights, each propagated like a sun (docs/METHOD.md, "Environment
+lights").
 
 Convention (Mitsuba 3's ``envmap``, so that the reference export is the map itself): the texel
 at row i, column j of an (H, W) map holds the radiance arriving FROM the direction
@@ -25,6 +26,7 @@ import numpy as np
 from .errors import PopvolError
 from .lights import DirectionalLight
 
+# Rec. 709 luminance weights of linear RGB (metrics.luminance uses them too)
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 

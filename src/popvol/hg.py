@@ -1,4 +1,5 @@
-"""Henyey-Greenstein phase function tools (supplement Sec. 1.1; RECONSTRUCTION.md 2.2, 2.7).
+"""Henyey-Greenstein phase function tools (supplement Sec. 1.1; docs/METHOD.md,
+"Henyey-Greenstein tools").
 
 All functions take scalars or arrays (broadcast) and return float64. mu = cos(theta) is the
 cosine from the lobe's axis; g (or a, for a cell's radiance lobe) is the mean cosine.
@@ -116,7 +117,7 @@ def conditional_mean_cosines(a):
     int mu f dmu / int f dmu over mu in [c, 1], [-c, c], [-1, -c], c = cos(pi/4).
 
     Used by the `moment` rule: each outgoing part carries the mean cosine of its own slice,
-    which conserves the lobe's first angular moment (RECONSTRUCTION.md 5.3). Where a slice
+    which conserves the lobe's first angular moment (docs/METHOD.md, "Walk"). Where a slice
     holds no energy (|a| -> 1) the limit is returned, so the result is always finite.
     """
     a_in = np.asarray(a, np.float64)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .envmap import LUMINANCE
 from .errors import PopvolError
 
 RELMSE_EPS = 0.01
@@ -44,8 +45,9 @@ def brightness_ratio(img, ref) -> float:
 
 
 def luminance(rgb) -> np.ndarray:
+    """Relative luminance of linear RGB (Rec. 709 weights, ``envmap.LUMINANCE``), float64."""
     rgb = np.asarray(rgb, np.float64)
-    return rgb @ np.array([0.2126, 0.7152, 0.0722])
+    return rgb @ LUMINANCE
 
 
 def ssim(img, ref) -> float:

@@ -1,4 +1,4 @@
-"""Image output: linear HDR as OpenEXR, display images as PNG (exposure + sRGB).
+"""Images: linear HDR as OpenEXR (written and read), display images as PNG (exposure + sRGB).
 
 Images are float32 (H, W, 3) linear RGB radiance. Clipping to [0, 1] happens only when a
 display image (PNG) is made; the EXR keeps the linear values.

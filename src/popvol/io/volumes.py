@@ -1,4 +1,4 @@
-"""Volume readers: dense NumPy .npz and Mitsuba .vol grids (OpenVDB comes in a later version).
+"""Volume readers: dense NumPy .npz and Mitsuba .vol grids here; OpenVDB .vdb through io/vdb.py.
 
 Convention (OpenVDB style): ``density[i, j, k]`` is indexed x, y, z and the centre of voxel
 (i, j, k) is at ``origin + (i, j, k) * voxel_size``; the medium is the union of the voxel

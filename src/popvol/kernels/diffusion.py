@@ -12,6 +12,8 @@ J = phi_face / 2 (no light enters) with Fick's law over the half cell to the fac
 see diffusion.boundary_weight) makes the staircase of cell faces leak through the area of the
 smooth surface it approximates, not through its own (up to sqrt(3) times larger) area.
 The matrix is symmetric positive definite; it is never stored.
+
+NumPy twin of boundary_weight: tests/twins.py.
 """
 import math
 

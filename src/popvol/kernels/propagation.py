@@ -1,16 +1,16 @@
-"""Numba kernels of the propagation step (supplement Eq. 4, 7, 9, 12; METHOD.md step 4).
+"""Numba kernels of the propagation step (supplement Eq. 4, 7, 9, 12; docs/METHOD.md, "Walk").
 
 State per domain cell (k along the light, i, j across it):
   W   in-flight power [W] (a "packet"), Wa = W * a its energy-weighted anisotropy, so that the
       energy-weighted merge at a destination is a plain sum;
   phi accumulated fluence [W/m^2] (phi += W / h^2 per visit: a packet crossing a cubic cell
       of size h travels h, so phi += W h / h^3), phia = sum of W a / h^2.
-Per-cell medium factors, precomputed (see propagate.py):
+Per-cell medium factors, precomputed (see walk.medium_factors):
   Th = exp(-sigma_a h / 2): half-step transmittance, so T(src->dst) = Th[src] Th[dst] is
        exp(-sigma_a s) with sigma_a averaged over the two cells (supplement Sec. 1.3);
   Dh = half-step anisotropy decay: g^(sigma_s h / 2) (`paper`, Eq. 12) or
        exp(-sigma_s h (1 - g) / 2) (`poisson`); the decay src->dst is Dh[src] Dh[dst].
-Split table (float64 (n, 8), see propagate.split_table), columns:
+Split table (float64 (n, 8), see walk.split_table), columns:
   0 front share, 1 share of EACH side, 2 back share of HG_a; 3, 4, 5 their conditional mean
   cosines; sampled at a = linspace(-1, 1, n), interpolated linearly. The kernels take the back
   share as 1 - front - 4 side, so the six shares sum to 1 to rounding (supplement Eq. 8).
@@ -21,6 +21,8 @@ Each transfer is split in two halves: the sender applies its own Th (and Dh) whe
 receiver its own when it gathers. What leaves the domain crosses only the sender's half cell.
 Budget tallies (float64 (4,)): [reflected (out through the face k = 0, toward the light),
 transmitted (out through k = n_d - 1), side (out through the 4 lateral faces), absorbed].
+
+NumPy twins (exact HG splits, no table): tests/twins.py (jacobi_step, sweep, hand_over).
 """
 import numba as nb
 import numpy as np
@@ -34,8 +36,9 @@ def split(table, w, wa, moment):
 
     Returns (front, front*a', side, side*a', back, back*a'): ``side`` is the share of ONE
     lateral neighbour, a' each part's outgoing anisotropy before decay. With float32 packets and
-    a float32 table (what propagate() passes) the arithmetic stays in float32: 20 % faster than
-    mixing in float64, and the shares still sum to 1 exactly (back = 1 - front - 4 side).
+    a float32 table (walk.split_table32, what the walk passes) the arithmetic stays in float32,
+    20 % faster than mixing in float64, and the shares still sum to 1 exactly (back = 1 - front
+    - 4 side).
     """
     a = wa / w
     n = table.shape[0]
@@ -56,9 +59,9 @@ def split(table, w, wa, moment):
 
 @nb.njit(inline="always", cache=True)
 def _hands_over(handover, diffusive, Q, k, i, j, w, wa):
-    """The isotropic stage (METHOD.md step 7, done as diffusion): a packet at a cell centre whose
-    lobe has spread below |a| < handover * diffusive[k, i, j] (the cell's threshold factor, see
-    propagate.handover_factor; 0 outside the diffusion region) leaves the walk:
+    """The hand-over to the diffusion stage (docs/METHOD.md, "Hand-over"): a packet at a cell
+    centre whose lobe has spread below |a| < handover * diffusive[k, i, j] (the cell's threshold
+    factor, see walk.handover_factor; 0 outside the diffusion region) leaves the walk:
     its power and first moment go to Q[0], Q[1] (the diffusion source, see diffusion.py).
     ``handover`` <= 0 turns this off (``diffusive`` and ``Q`` are then not read)."""
     if handover > 0.0 and abs(wa) < handover * diffusive[k, i, j] * w:
@@ -191,9 +194,8 @@ def jacobi_gather(parts, Th, Dh, periodic, W_out, Wa_out, tally):
 # along the sweep direction in one sweep. Band edges do not depend on the thread count, so
 # the result is the same on every machine. The callers hand bands to the threads one at a time
 # (``with numba.parallel_chunksize(1)``; inside jitted code it would stop Numba's caching):
-# where the light is, some bands have far more work than others, and the default static split
-# left one of two threads idle for up to half a sweep (demo cloud at 128^3: sweeps 20-25 %
-# faster).
+# where the light is, some bands have far more work than others, and a static split of the
+# bands would leave threads idle for much of a sweep.
 
 BAND_ROWS = 16
 

@@ -3,12 +3,12 @@
 Propagation follows kernels/propagation.py (supplement Eq. 4, 7, 9, 12) with the radial
 direction as the principal ordinate: a packet's front part moves out one shell, its back part
 in one shell, and its four side parts to the neighbours in theta and phi. The cells are not
-cubes, so each transfer has its own length (issue "every light"):
+cubes, so each transfer has its own length:
 
     radial dr,    along theta r dtheta,    along phi r sin(theta) dphi,
 
 and each cell holds half-step transmittance and decay for each of the three (Tr, Tt, Tp and
-Dr, Dt, Dp, see spherical.py). A transfer src -> dst is attenuated by T[src] T[dst] of its
+Dr, Dt, Dp, see lights/point.py). A transfer src -> dst is attenuated by T[src] T[dst] of its
 direction and its anisotropy decays by D[src] D[dst], both applied by the sender, so pending
 packets (R, Ra) are what has arrived at a cell's centre. What leaves the domain crosses only
 the sender's half cell. The split shares are those of a cube (the six principal ordinates).
@@ -22,6 +22,8 @@ on the other side (phi + pi, same row); a back step from the innermost shell pas
 Budget tallies as in propagation.py: [reflected (in through the inner sphere of a cone domain),
 transmitted (out through the outer sphere), side (out through a cone's lateral faces),
 absorbed].
+
+NumPy twins: tests/twins.py (sweep_spherical, resample_spherical, splat_to_grid).
 """
 import math
 

@@ -1,4 +1,5 @@
-"""Slow, readable NumPy twins of the Numba kernels, used by the tests on small grids.
+"""Slow, readable NumPy twins of the Numba kernels in ``popvol.kernels``, used by the tests on
+small grids (tests import this file as ``twins``, beside ``montecarlo`` and ``brute``).
 
 They implement the same equations with whole-array operations and the exact HG formulas of
 ``popvol.hg`` (no lookup table), so a disagreement points at the kernel's indexing, races or
@@ -8,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import hg
+from popvol import hg
 
 REFLECTED, TRANSMITTED, SIDE_ESCAPED, ABSORBED = 0, 1, 2, 3
 
