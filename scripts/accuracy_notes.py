@@ -61,7 +61,7 @@ def main(out=ROOT / "docs" / "ACCURACY_NOTES.md"):
               "the sides. With `paper`, back- and side-scattered light is re-aimed forward and stays",
               "in the cube ever longer, so absorption grows with refinement. This is the cause of the",
               "too-bright, resolution-dependent clouds in METHOD.md.", "",
-              "**With the isotropic stage done as diffusion** (`method.isotropic = \"diffusion\"`, the",
+              "**With the isotropic stage done as diffusion** (`isotropic = \"diffusion\"`, the",
               "default; popvol/diffusion.py) light whose lobe has spread below the hand-over threshold",
               "handover_scale * (1 - exp(-sigma_tr h)) of its cell leaves the walk for a diffusion",
               "solve with the physical coefficient 1 / (3 sigma_tr): the fractions then change little",

@@ -5,8 +5,9 @@
 For each scene of scenes/accuracy/ (skipped, with the reason, if its volume is not in ../shared):
 a converged reference is rendered once with `popvol.reference` (kept in build/accuracy/, reused
 and extended on later runs: never edited by hand), then popvol renders the scene with each
-combination of rule (paper, moment), decay (paper, poisson), isotropic stage (walk, diffusion)
-at 64 and 128 cells with the sweep solver, and with the Jacobi solver at 64 cells. The table
+combination of the experimental knobs (popvol.method.KNOBS, docs/SCENE.md `[experimental]`)
+rule, decay and isotropic stage at 64 and 128 cells with the sweep solver, and with the Jacobi
+solver at 64 cells; they are passed as keyword arguments of `popvol.load_scene`. The table
 gives relMSE (epsilon 0.01), mean-brightness ratio, SSIM and popvol's time; figures show the
 default method and the best measured variant of each scene. ``--only`` re-runs the named scenes
 and keeps the other scenes' sections of the existing table.
@@ -23,7 +24,7 @@ import popvol
 from popvol import metrics
 from popvol.errors import PopvolError
 from popvol.reference import load_reference, render_reference
-from popvol.scene import Method
+from popvol.method import KNOB, Method
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes" / "accuracy"
@@ -33,17 +34,21 @@ ORDER = ["haze", "wdas_sun", "wdas_sun_sky", "wdas_backlit", "smoke1", "smoke1_p
 SPP_SCALE = {"smoke1": 0.25}      # the dense smoke costs Mitsuba ~10x more per sample
 
 
+RULES, DECAYS, ISOTROPIC = (KNOB[k].allowed for k in ("rule", "decay", "isotropic"))
+
+
 def variants(quick: bool, name: str = ""):
+    """The method overrides (load_scene keyword arguments) measured on scene ``name``."""
     res = (64,) if quick else (64, 128)
+    d = Method()
     if name in ("wdas_sun_sky", "demo_envmap"):   # 9-13 domains a variant: default rule and decay
-        for iso, n in itertools.product(("walk", "diffusion"), res):
-            yield {"rule": "moment", "decay": "poisson", "isotropic": iso, "resolution": n, "solver": "sweep"}
+        for iso, n in itertools.product(ISOTROPIC, res):
+            yield {"rule": d.rule, "decay": d.decay, "isotropic": iso, "resolution": n, "solver": "sweep"}
         return
-    for rule, decay, iso, n in itertools.product(("moment", "paper"), ("poisson", "paper"),
-                                                  ("walk", "diffusion"), res):
+    for rule, decay, iso, n in itertools.product(RULES, DECAYS, ISOTROPIC, res):
         yield {"rule": rule, "decay": decay, "isotropic": iso, "resolution": n, "solver": "sweep"}
     if not quick and name != "smoke1_point":       # point lights always sweep
-        for rule, decay, iso in itertools.product(("moment", "paper"), ("poisson", "paper"), ("walk", "diffusion")):
+        for rule, decay, iso in itertools.product(RULES, DECAYS, ISOTROPIC):
             yield {"rule": rule, "decay": decay, "isotropic": iso, "resolution": 64, "solver": "jacobi"}
 
 

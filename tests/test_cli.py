@@ -68,12 +68,15 @@ LIGHT = '[[lights]]\ndirection = [0, -1, 0]\n'
     (MEDIUM + LIGHT + '[camera]\nheight = -3\n', ["camera.height"]),
     (MEDIUM + LIGHT + '[camera]\nfov = 190\n', ["camera.fov", "(0, 180)"]),
     (MEDIUM + LIGHT + '[camera]\norigin = [0, 0, 0]\ntarget = [0, 0, 0]\n', ["camera.target"]),
-    (MEDIUM + LIGHT + '[method]\nsolver = "magic"\n', ["method.solver", "sweep"]),
+    (MEDIUM + LIGHT + '[method]\nsolver = "sweep"\n', ["method.solver", "experimental", "[experimental]"]),
+    (MEDIUM + LIGHT + '[experimental]\nsolver = "magic"\n', ["experimental.solver", "'sweep', 'jacobi'"]),
+    (MEDIUM + LIGHT + '[experimental]\nresolution = 64\n', ["experimental.resolution", "[method]"]),
+    (MEDIUM + LIGHT + '[experimental]\nsolvr = "sweep"\n', ["unknown key experimental.solvr", "isotropic"]),
     (MEDIUM + LIGHT + '[method]\nresolution = 100000\n', ["method.resolution", "4096"]),
     (MEDIUM + LIGHT + '[method]\nresolution = 4096\n', ["method.resolution", "GiB"]),
     (MEDIUM + 'albdo = 0.5\n' + LIGHT, ["unknown key medium.albdo"]),
-    (MEDIUM + LIGHT + '[method]\nhandover = 0.05\n', ["method.handover", "method.handover_scale"]),
-    (MEDIUM + LIGHT + '[method]\nhandover_scale = -1\n', ["method.handover_scale", "[0, 100]"]),
+    (MEDIUM + LIGHT + '[method]\nhandover = 0.05\n', ["method.handover", "experimental.handover_scale"]),
+    (MEDIUM + LIGHT + '[experimental]\nhandover_scale = -1\n', ["experimental.handover_scale", "[0, 100]"]),
     ('[medium]\ntype = "file"\nfile = "nope.npz"\n' + LIGHT, ["nope.npz"]),
     (MEDIUM, ["lights"]),
     ('this is not toml', ["invalid TOML"]),
@@ -96,23 +99,23 @@ def render_error(tmp_path, scene_text, words):
 
 
 @pytest.mark.parametrize("optics,words", [
-    ('albedo = [0.9, 0.8]\n', ["medium.albedo", "three (RGB)"]),
-    ('scale = [1, 2, -3]\n', ["medium.scale", "[0, inf]"]),
+    ('albedo = [0.9, 0.8]\n', ["medium.albedo", "1 or 3 finite numbers in [0, 1]"]),
+    ('scale = [1, 2, -3]\n', ["medium.scale", ">= 0"]),
     ('albedo = {grid = "wrong_shape"}\n', ["medium.albedo grid", "(3, 3, 3)", "(4, 4, 4)"]),
     ('albedo = {grid = "too_big"}\n', ["medium.albedo grid", "outside [0, 1]", "(0, 0, 0)"]),
     ('g = {grid = "g_one"}\n', ["medium.g grid", "outside (-1, 1)"]),
     ('albedo = {grid = "nope"}\n', ["no array named 'nope'", "density"]),
     ('albedo = {file = "x.npz", grid = "a", colour = 1}\n', ["unknown key medium.albedo.colour"]),
-    ('g = {grid = "g_neg"}\n[method]\ndecay = "paper"\n', ["decay = 'paper'", "g >= 0"]),
+    ('g = {grid = "g_neg"}\n[experimental]\ndecay = "paper"\n', ["decay = 'paper'", "g >= 0"]),
 ])
 def test_bad_optics_give_one_clear_line(tmp_path, optics, words):
     n = (4, 4, 4)
     np.savez(tmp_path / "m.npz", density=np.ones(n, np.float32), wrong_shape=np.ones((3, 3, 3), np.float32),
              too_big=np.full(n, 1.5, np.float32), g_one=np.ones(n, np.float32),
              g_neg=np.full(n, -0.3, np.float32))
-    text = '[medium]\nfile = "m.npz"\n' + optics.split("[method]")[0] + LIGHT
-    if "[method]" in optics:
-        text += "[method]" + optics.split("[method]")[1]
+    text = '[medium]\nfile = "m.npz"\n' + optics.split("[experimental]")[0] + LIGHT
+    if "[experimental]" in optics:
+        text += "[experimental]" + optics.split("[experimental]")[1]
     render_error(tmp_path, text, words)
 
 
@@ -179,3 +182,134 @@ def test_compare_against_a_black_reference_reports_flip_as_unavailable(tmp_path)
     assert r.returncode == 0, (r.stdout, r.stderr)
     assert "FLIP n/a" in r.stdout
     assert json.loads((tmp_path / "c.json").read_text())["flip"] is None
+
+
+# -- hostile values: always one PopvolError line, never a TypeError ---------------------------
+
+@pytest.mark.parametrize("snippet,words", [
+    (MEDIUM + LIGHT + '[method]\nspp = "many"\n', ["method.spp", "[1, 4096]"]),
+    (MEDIUM + LIGHT + '[method]\nstep = true\n', ["method.step", "[0.001, 16]"]),
+    (MEDIUM + LIGHT + '[method]\nresolution = 64.0\n', ["method.resolution", "integer"]),
+    (MEDIUM + LIGHT + '[method]\nenvironment_resolution = 1\n', ["method.environment_resolution", "0 or"]),
+    (MEDIUM + LIGHT + '[method]\ntolerance = inf\n', ["method.tolerance"]),
+    (MEDIUM + LIGHT + '[experimental]\nisotropic = ["walk"]\n', ["experimental.isotropic", "'walk'"]),
+    ('method = 3\n' + MEDIUM + LIGHT, ["method must be a table"]),
+    ('experimental = "yes"\n' + MEDIUM + LIGHT, ["experimental must be a table"]),
+    (MEDIUM + LIGHT + '[camera]\norigin = "here"\n', ["camera.origin", "3 finite numbers"]),
+    (MEDIUM + LIGHT + '[camera]\norigin = [1e308, 0, 0]\ntarget = [-1e308, 0, 0]\n', ["camera.target"]),
+    (MEDIUM + LIGHT + '[camera]\nwidth = 1e308\n', ["camera.width", "integer"]),
+    (MEDIUM + LIGHT + '[camera]\nup = [[0, 1, 0]]\n', ["camera.up"]),
+    (MEDIUM + '[[lights]]\ndirection = [0, -1, 0]\nirradiance = [[1, 2, 3]]\n', ["lights[0].irradiance", ">= 0"]),
+    (MEDIUM + '[[lights]]\ndirection = [0, -1, 0]\nirradiance = "bright"\n', ["lights[0].irradiance"]),
+    (MEDIUM + '[[lights]]\ndirection = [0, -1, 0]\na0 = nan\n', ["lights[0].a0", "[0, 1]"]),
+    (MEDIUM + '[[lights]]\ndirection = ["x", 1, 2]\n', ["lights[0].direction"]),
+    (MEDIUM + '[[lights]]\ntype = "point"\nposition = [[0], [1, 2]]\n', ["lights[0].position"]),
+    (MEDIUM + '[[lights]]\ntype = 3\n', ["lights[0].type", "'directional'"]),
+    (MEDIUM + '[[lights]]\ntype = "sky"\nlights = true\n', ["lights[0].lights", "[1, 256]"]),
+    (MEDIUM + 'extent = -1\n' + LIGHT, ["medium.extent", "(0, "]),
+    (MEDIUM + 'seed = 1e308\n' + LIGHT, ["medium.seed", "integer"]),
+    (MEDIUM + 'g = "0.5"\n' + LIGHT, ["medium.g", "(-1, 1)"]),
+    (MEDIUM + 'albedo = [0.5, "x", 0.5]\n' + LIGHT, ["medium.albedo"]),
+    ('[medium]\ntype = ["file"]\n' + LIGHT, ["medium.type", "'procedural'"]),
+    ('[medium]\nfile = 7\n' + LIGHT, ["medium.file", "string"]),
+    ('[medium]\nfile = "x.npz"\ngrid = 7\n' + LIGHT, ["medium.grid", "string"]),
+    (MEDIUM + LIGHT + '[background]\nradiance = [1, 2]\n', ["background.radiance", "1 or 3"]),
+    (MEDIUM + LIGHT + '[background]\ntype = 5\n', ["background.type", "'constant'"]),
+])
+def test_hostile_scene_values_give_one_line(tmp_path, snippet, words):
+    p = write_scene(tmp_path, snippet)
+    with pytest.raises(PopvolError) as e:
+        load_scene(p)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(str(p)), msg
+    for w in words:
+        assert w in msg, msg
+
+
+# -- the method's knobs: declared once, read by the loader, the CLI and the docs --------------
+
+def test_method_defaults_and_validation_come_from_the_knobs():
+    from dataclasses import fields
+    from popvol.method import KNOBS, Method
+    assert [f.name for f in fields(Method)] == [k.name for k in KNOBS]
+    m = Method()
+    assert all(getattr(m, k.name) == k.default for k in KNOBS)
+    assert m.validate("x") is m and m.experimental_changes() == {}
+    for k in KNOBS:
+        bad = ["nope"] if k.type is str else [k.allowed[1] + 1, "many", True, None]
+        for v in bad:
+            with pytest.raises(PopvolError, match=rf"^src: {k.table}\.{k.name} = "):
+                k.check(v, "src")
+        if k.type is not str:
+            assert k.check(k.allowed[0], "src") == k.allowed[0]
+
+
+def test_scene_md_documents_exactly_the_knobs():
+    """docs/SCENE.md holds the tables knob_table_markdown() generates (regenerate them from it
+    when a knob changes) under [method] and [experimental], and names the CLI's options."""
+    from popvol.method import KNOBS, cli_knobs, knob_table_markdown
+    doc = (REPO / "docs" / "SCENE.md").read_text()
+    method_part = doc.split("## `[method]`")[1].split("## `[experimental]`")[0]
+    experimental_part = doc.split("## `[experimental]`")[1].split("\n## ")[0]
+    assert knob_table_markdown(False) in method_part, "\n" + knob_table_markdown(False)
+    assert knob_table_markdown(True) in experimental_part, "\n" + knob_table_markdown(True)
+    documented = [line.split("`")[1] for line in (method_part + experimental_part).splitlines()
+                  if line.startswith("| `")]
+    assert sorted(documented) == sorted(k.name for k in KNOBS)
+    for command in ("render", "compare"):
+        for k in cli_knobs(command):
+            assert f"`{k.option}`" in method_part
+
+
+def test_cli_offers_the_cli_knobs_and_no_experimental_ones():
+    from click.testing import CliRunner
+    from popvol.cli import cli
+    from popvol.method import KNOBS, cli_knobs
+    assert {k.name for k in cli_knobs("render")} == {"resolution", "spp", "exposure"}
+    assert {k.name for k in cli_knobs("compare")} == {"resolution", "spp"}
+    runner = CliRunner()
+    for command in ("render", "compare"):
+        text = runner.invoke(cli, [command, "--help"]).output
+        for k in KNOBS:
+            assert (k.option in text) == (k in cli_knobs(command)), (command, k.name)
+    for option in ("--solver", "--rule", "--decay", "--isotropic"):
+        r = runner.invoke(cli, ["render", option, "x"])
+        assert r.exit_code == 2 and "No such option" in r.output
+
+
+def test_bad_cli_knob_names_the_option(tmp_path):
+    r = popvol("render", "-o", str(tmp_path / "x.png"), "--spp", "0")
+    assert r.returncode == 2
+    assert r.stderr.strip() == "popvol: error: popvol render: --spp = 0 must be an integer in [1, 4096]"
+
+
+def test_experimental_table_and_python_overrides(tmp_path):
+    p = write_scene(tmp_path, MEDIUM + LIGHT + '[method]\nresolution = 16\n'
+                    '[experimental]\nisotropic = "walk"\nrule = "paper"\n')
+    s = load_scene(p)
+    assert (s.method.isotropic, s.method.rule, s.method.resolution) == ("walk", "paper", 16)
+    assert s.method.experimental_changes() == {"rule": "paper", "isotropic": "walk"}
+    s = load_scene(p, isotropic="diffusion", solver="jacobi", handover_scale=3, spp=2)
+    assert (s.method.isotropic, s.method.solver, s.method.handover_scale, s.method.spp) == \
+        ("diffusion", "jacobi", 3.0, 2)
+    with pytest.raises(PopvolError, match=r"experimental\.isotropic = 'fast' must be one of 'diffusion', 'walk'"):
+        load_scene(p, isotropic="fast")
+    with pytest.raises(PopvolError, match="unknown override 'isotropc'"):
+        load_scene(p, isotropc="walk")
+
+
+def test_method_tables_round_trip(tmp_path):
+    """method_tables writes every [method] knob and only the changed experimental ones; the
+    written scene loads to the same method."""
+    import tomli_w
+    from popvol.method import KNOBS, Method, method_tables
+    t = method_tables(Method())
+    assert t["experimental"] == {} and set(t["method"]) == {k.name for k in KNOBS if not k.experimental}
+    m = Method(resolution=16, isotropic="walk", decay="paper", tolerance=1e-4, exposure=1)
+    t = method_tables(m)
+    assert t["experimental"] == {"isotropic": "walk", "decay": "paper"}
+    assert type(t["method"]["exposure"]) is float
+    d = {**DEMO_SCENE, "medium": {**DEMO_SCENE["medium"], "resolution": 16}, **t}
+    p = tmp_path / "written.toml"
+    p.write_text(tomli_w.dumps(d))
+    assert vars(load_scene(p).method) == vars(m.validate("m"))

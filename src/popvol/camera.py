@@ -2,13 +2,17 @@
 
 The camera looks from ``origin`` toward ``target``; ``up`` fixes the roll; ``fov`` is the
 *vertical* field of view in degrees. Pixel (row 0, column 0) is the top-left of the image.
+Fields are checked with :mod:`popvol.check` when the camera is made.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
+from . import check
 from .errors import PopvolError
 
 MAX_PIXELS = 8192 * 8192
@@ -25,25 +29,26 @@ class Camera:
     source: str = "<camera>"
 
     def __post_init__(self):
-        for name in ("origin", "target", "up"):
-            v = np.asarray(getattr(self, name), dtype=np.float64)
-            if v.shape != (3,) or not np.all(np.isfinite(v)):
-                raise PopvolError(f"{self.source}: camera.{name} must be 3 finite numbers, got {getattr(self, name)!r}")
-            setattr(self, name, v)
-        if np.linalg.norm(self.target - self.origin) == 0:
+        src = self.source
+        self.origin = check.vector(self.origin, "camera.origin", src)
+        self.target = check.vector(self.target, "camera.target", src)
+        self.up = check.vector(self.up, "camera.up", src, nonzero=True)
+        self.fov = check.number(self.fov, "camera.fov", src, 0.0, 180.0, open_interval=True)
+        self.width = check.integer(self.width, "camera.width", src, 1, math.inf)
+        self.height = check.integer(self.height, "camera.height", src, 1, math.inf)
+        with np.errstate(over="ignore", invalid="ignore"):
+            view = self.target - self.origin
+            dist, up = np.linalg.norm(view), np.linalg.norm(self.up)
+            across = np.linalg.norm(np.cross(view / dist, self.up / up)) if 0 < dist < np.inf else 0.0
+        if not np.isfinite(dist) or not np.isfinite(up):
+            raise PopvolError(f"{self.source}: camera.target - camera.origin (or camera.up) overflows; "
+                              "keep coordinates well below 1e308")
+        if dist == 0:
             raise PopvolError(f"{self.source}: camera.target equals camera.origin; they must differ")
-        if np.linalg.norm(np.cross(self.target - self.origin, self.up)) < 1e-9 * np.linalg.norm(self.target - self.origin) * max(np.linalg.norm(self.up), 1e-300):
+        if not across >= 1e-9:
             raise PopvolError(f"{self.source}: camera.up is parallel to the view direction; choose another up vector")
-        if not (np.isfinite(self.fov) and 0.0 < self.fov < 180.0):
-            raise PopvolError(f"{self.source}: camera.fov = {self.fov!r} degrees is outside (0, 180)")
-        for name in ("width", "height"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise PopvolError(f"{self.source}: camera.{name} = {v!r} must be an integer >= 1")
         if self.width * self.height > MAX_PIXELS:
             raise PopvolError(f"{self.source}: camera {self.width}x{self.height} has more than {MAX_PIXELS} pixels")
-        self.fov = float(self.fov)
-        self.width, self.height = int(self.width), int(self.height)
 
     def basis(self) -> np.ndarray:
         """float64 (3, 3): rows forward, right, up (world space, unit, right-handed view)."""

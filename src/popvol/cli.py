@@ -1,7 +1,9 @@
 """Command line: ``popvol render``, ``view``, ``reference``, ``compare``, ``bench``, ``hg-figure``.
 
-Bad input ends with one line ``popvol: error: ...`` on stderr and exit status 2, never a
-traceback.
+The method options of ``render`` and ``compare`` (``--resolution``, ``--spp``, ...) are made
+from the knobs of :mod:`popvol.method` that name the command; experimental knobs are not
+offered here (a scene's ``[experimental]`` table sets them). Bad input ends with one line
+``popvol: error: ...`` on stderr and exit status 2, never a traceback.
 """
 from __future__ import annotations
 
@@ -14,6 +16,28 @@ from pathlib import Path
 import click
 
 from .errors import PopvolError
+from .method import cli_knobs
+
+
+def method_options(command: str):
+    """Decorator: a ``--name`` option for each knob of :func:`popvol.method.cli_knobs`
+    (``command``), passed to the command as a keyword argument named like the knob (None when
+    not given)."""
+    def decorate(f):
+        for k in reversed(cli_knobs(command)):
+            f = click.option(k.option, k.name, type=k.type, default=None, help=k.help)(f)
+        return f
+    return decorate
+
+
+def _method_overrides(command: str, knobs: dict) -> dict:
+    """The method options given on the command line, each checked (a bad one is named as the
+    option)."""
+    given = {}
+    for k in cli_knobs(command):
+        if knobs.get(k.name) is not None:
+            given[k.name] = k.check(knobs[k.name], f"popvol {command}", k.option)
+    return given
 
 
 def _progress():
@@ -34,18 +58,12 @@ def cli():
 @click.option("--exr", type=click.Path(dir_okay=False), help="Also write the linear HDR image as EXR.")
 @click.option("--width", type=int, help="Image width in pixels (overrides the scene).")
 @click.option("--height", type=int, help="Image height in pixels (overrides the scene).")
-@click.option("--resolution", type=int, help="Cells along the longest side of each light domain.")
-@click.option("--solver", type=click.Choice(["sweep", "jacobi"]), help="Propagation solver.")
-@click.option("--rule", type=click.Choice(["moment", "paper"]), help="Outgoing-anisotropy rule.")
-@click.option("--decay", type=click.Choice(["poisson", "paper"]), help="Anisotropy decay law.")
-@click.option("--isotropic", type=click.Choice(["walk", "diffusion"]), help="Isotropic stage: keep walking or diffusion solve.")
-@click.option("--spp", type=int, help="Jittered samples per pixel.")
-@click.option("--exposure", type=float, help="PNG exposure in stops.")
+@method_options("render")
 @click.option("--stats", type=click.Path(dir_okay=False), help="Write timings, iterations and energy budget as JSON.")
-def render(scene, output, exr, width, height, resolution, solver, rule, decay, isotropic, spp, exposure, stats):
+def render(scene, output, exr, width, height, stats, **knobs):
     """Render SCENE (a TOML file; the built-in demo cloud if omitted) to an image."""
     from .io.images import write_image
-    from .propagate import solve
+    from . import solve
     from .render import render as render_image
     from .scene import load_scene
 
@@ -55,8 +73,7 @@ def render(scene, output, exr, width, height, resolution, solver, rule, decay, i
     if stats:
         _check_writable(stats, "--stats")
     t0 = time.perf_counter()
-    sc = load_scene(scene, width=width, height=height, resolution=resolution, solver=solver,
-                    rule=rule, decay=decay, isotropic=isotropic, spp=spp, exposure=exposure)
+    sc = load_scene(scene, width=width, height=height, **_method_overrides("render", knobs))
     t_load = time.perf_counter() - t0
     tol = sc.method.tolerance
     with _progress() as bar:
@@ -92,8 +109,7 @@ def render(scene, output, exr, width, height, resolution, solver, rule, decay, i
                "method": vars(sc.method), "seconds": seconds, "domains": info["domains"]}
         Path(stats).write_text(json.dumps(doc, indent=2))
     its = ", ".join(str(d["iterations"]) for d in info["domains"])
-    # point lights always sweep (spherical.py)
-    solvers = "/".join(sorted({"sweep" if d["type"] == "point" else sc.method.solver for d in info["domains"]}))
+    solvers = "/".join(sorted({d["solver"] for d in info["domains"]}))
     click.echo(f"{output}: {sc.camera.width}x{sc.camera.height} in {seconds['total']:.2f} s "
                f"(load {t_load:.2f}, resample {seconds['resample']:.2f}, propagate {seconds['propagate']:.2f} "
                f"[{solvers}, {its} iterations]"
@@ -159,18 +175,13 @@ def reference(scene, output, spp, passes, variant, max_depth, width, height, new
 @click.option("--reference", "ref_path", required=True, type=click.Path(dir_okay=False), help="Reference .exr (from popvol reference).")
 @click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write the metrics as JSON.")
 @click.option("--figure", type=click.Path(dir_okay=False), help="Write popvol | reference | error map as PNG.")
-@click.option("--resolution", type=int, help="Cells along the longest side of each light domain.")
-@click.option("--solver", type=click.Choice(["sweep", "jacobi"]))
-@click.option("--rule", type=click.Choice(["moment", "paper"]))
-@click.option("--decay", type=click.Choice(["poisson", "paper"]))
-@click.option("--isotropic", type=click.Choice(["walk", "diffusion"]))
-@click.option("--spp", type=int, help="Jittered samples per pixel of the popvol image.")
+@method_options("compare")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also write popvol's image (.png/.exr).")
-def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, isotropic, spp, output):
+def compare(scene, ref_path, json_out, figure, output, **knobs):
     """Render SCENE with popvol and measure it against a reference image."""
     from . import metrics
     from .io.images import write_image
-    from .propagate import solve
+    from . import solve
     from .reference import load_reference
     from .render import render as render_image
     from .scene import load_scene
@@ -179,8 +190,7 @@ def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, 
             _check_writable(path, opt)
     ref = load_reference(ref_path)
     h, w = ref.image.shape[:2]
-    sc = load_scene(scene, width=w, height=h, resolution=resolution, solver=solver, rule=rule,
-                    decay=decay, isotropic=isotropic, spp=spp)
+    sc = load_scene(scene, width=w, height=h, **_method_overrides("compare", knobs))
     t0 = time.perf_counter()
     solution = solve(sc)
     img = render_image(sc, solution)
@@ -192,8 +202,7 @@ def compare(scene, ref_path, json_out, figure, resolution, solver, rule, decay, 
         Path(json_out).write_text(json.dumps(res, indent=2))
     if figure:
         metrics.comparison_figure(figure, img, ref.image, sc.method.exposure,
-                                  f"{Path(sc.source).name}: {sc.method.rule} + {sc.method.decay} + "
-                                  f"{sc.method.isotropic}, "
+                                  f"{Path(sc.source).name}: {_method_label(sc.method)}, "
                                   f"{sc.method.resolution} cells, reference {ref.spp} spp")
     if output:
         write_image(output, img, sc.method.exposure)
@@ -233,6 +242,12 @@ def view(scene, port, host, no_browser, width, height, resolution, draft_resolut
         raise PopvolError(f"--save-dir {save_dir}: folder does not exist")
     engine = Engine(scene, width=width, height=height, resolution=resolution, draft_resolution=draft_resolution)
     serve(engine, host, port, open_browser=not no_browser, save_dir=save_dir, echo=click.echo)
+
+
+def _method_label(method) -> str:
+    """'default method', or the experimental knobs that differ from it."""
+    changes = method.experimental_changes()
+    return ", ".join(f"{k} = {v}" for k, v in changes.items()) if changes else "default method"
 
 
 def _check_writable(path: str, option: str) -> None:

@@ -1,6 +1,6 @@
 """The participating medium: a density grid in world space and its optical constants.
 
-Conventions (METHOD.md, "Conventions"):
+Conventions:
 - ``density[i, j, k]`` is indexed x, y, z; the centre of voxel (i, j, k) is at
   ``origin + (i, j, k) * voxel_size`` (OpenVDB style). The medium occupies the union of the
   voxel *cells*, ``[origin - voxel/2, origin + (n - 1/2) * voxel]``; outside it is vacuum.
@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import check
 from .errors import PopvolError
 
 #: Bytes that one medium voxel costs in solver and renderer working sets (density, 2 fields
@@ -66,17 +67,22 @@ class Medium:
             idx = tuple(int(v) for v in np.unravel_index(int(np.argmin(d)), d.shape))
             raise PopvolError(f"{self.source}: density has negative values (min {float(d.min()):g} at {idx}); it must be >= 0")
         self.density = d
-        self.voxel_size = _vec3(self.voxel_size, f"{self._field}.voxel_size", self.source, positive=True)
-        self.origin = _vec3(self.origin, f"{self._field}.origin", self.source)
-        self.scale = _rgb(self.scale, f"{self._field}.scale", self.source, lo=0.0)
-        if np.ndim(self.albedo) == 3:
-            self.albedo = _grid(self.albedo, d.shape, f"{self._field}.albedo", self.source, 0.0, 1.0, False)
+        f, src = self._field, self.source
+        if check._is_scalar(self.voxel_size):          # one number: cubic voxels
+            vs = check.number(self.voxel_size, f"{f}.voxel_size", src, 0.0, np.inf, open_interval=True)
+            self.voxel_size = np.full(3, vs)
         else:
-            self.albedo = _rgb(self.albedo, f"{self._field}.albedo", self.source, lo=0.0, hi=1.0)
-        if np.ndim(self.g) == 3:
-            self.g = _grid(self.g, d.shape, f"{self._field}.g", self.source, -1.0, 1.0, True)
+            self.voxel_size = check.vector(self.voxel_size, f"{f}.voxel_size", src, positive=True)
+        self.origin = check.vector(self.origin, f"{f}.origin", src)
+        self.scale = check.rgb(self.scale, f"{f}.scale", src)
+        if _is_grid(self.albedo):
+            self.albedo = _grid(self.albedo, d.shape, f"{f}.albedo", src, 0.0, 1.0, False)
         else:
-            self.g = _number(self.g, f"{self._field}.g", self.source, lo=-1.0, hi=1.0, open_interval=True)
+            self.albedo = check.rgb(self.albedo, f"{f}.albedo", src, 0.0, 1.0)
+        if _is_grid(self.g):
+            self.g = _grid(self.g, d.shape, f"{f}.g", src, -1.0, 1.0, True)
+        else:
+            self.g = check.number(self.g, f"{f}.g", src, -1.0, 1.0, open_interval=True)
 
     # -- geometry -------------------------------------------------------------------------
     @property
@@ -126,25 +132,9 @@ class Medium:
         return float(self.scale.max() * self.density.max() * np.max(hi - lo))
 
 
-def _vec3(value, name: str, source: str, positive: bool = False) -> np.ndarray:
-    v = np.asarray(value, dtype=np.float64)
-    if v.ndim == 0:
-        v = np.full(3, float(v))
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
-        raise PopvolError(f"{source}: {name} must be 3 finite numbers (or one), got {value!r}")
-    if positive and np.any(v <= 0):
-        raise PopvolError(f"{source}: {name} = {v.tolist()} must be > 0")
-    return v
-
-
-def _rgb(value, name: str, source: str, lo=None, hi=None) -> np.ndarray:
-    """One number or three (RGB), each in [lo, hi]: float64 (3,)."""
-    v = np.asarray(value, dtype=object if isinstance(value, (list, tuple)) else None)
-    items = list(v.reshape(-1)) if v.ndim else [value]
-    if len(items) not in (1, 3):
-        raise PopvolError(f"{source}: {name} must be one number or three (RGB), got {value!r}")
-    out = np.array([_number(x, name, source, lo=lo, hi=hi) for x in items], np.float64)
-    return np.repeat(out, 3) if out.size == 1 else out
+def _is_grid(value) -> bool:
+    """A per-voxel optics grid: a 3-D numeric array."""
+    return isinstance(value, np.ndarray) and value.ndim == 3 and value.dtype.kind in "iuf"
 
 
 def _grid(value, shape, name: str, source: str, lo: float, hi: float, open_interval: bool) -> np.ndarray:
@@ -160,19 +150,3 @@ def _grid(value, shape, name: str, source: str, lo: float, hi: float, open_inter
         raise PopvolError(f"{source}: {name} grid has {int((~ok).sum())} values outside {rng} "
                           f"(first at {at}: {a[at]!r})")
     return a
-
-
-def _number(value, name: str, source: str, lo=None, hi=None, open_interval=False) -> float:
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise PopvolError(f"{source}: {name} must be a number, got {value!r}") from None
-    rng = f"{'(' if open_interval else '['}{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}{')' if open_interval else ']'}"
-    ok = np.isfinite(x)
-    if ok and lo is not None:
-        ok = x > lo if open_interval else x >= lo
-    if ok and hi is not None:
-        ok = x < hi if open_interval else x <= hi
-    if not ok:
-        raise PopvolError(f"{source}: {name} = {value!r} is outside {rng}")
-    return x

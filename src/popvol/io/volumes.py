@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import check
 from ..errors import PopvolError
 
 SUFFIXES = (".npz", ".vol", ".vdb")
@@ -47,19 +48,12 @@ def validate_density(density, source: str, field: str = "density", signed: bool 
 
 
 def _vec3(value, source: str, field: str, default: float) -> np.ndarray:
+    """float64 (3,) from a file's 1 or 3 numbers (``default`` where the file has none)."""
     if value is None:
         return np.full(3, default, np.float64)
-    try:
-        v = np.asarray(value, np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        v = np.full(2, np.nan)      # not numbers: reported below
-    if v.size == 1:
-        v = np.repeat(v, 3)
-    if v.size != 3 or not np.all(np.isfinite(v)):
-        shown = " ".join(str(np.asarray(value)).split())      # one line, whatever its shape
-        raise PopvolError(f"{source}: {field} must be 1 or 3 finite numbers, got {shown[:80]} "
-                          f"(shape {np.shape(value)})")
-    return v
+    if isinstance(value, np.ndarray):
+        value = np.repeat(value.ravel(), 3) if value.size == 1 else value.ravel()
+    return check.vector(value, field, source)
 
 
 def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:

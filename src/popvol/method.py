@@ -1,0 +1,218 @@
+"""The method's knobs, each declared once in :data:`KNOBS`.
+
+Everything else is derived from that table: the :class:`Method` dataclass (fields and
+defaults), :meth:`Method.validate`, the keys the scene loader accepts in ``[method]`` and
+``[experimental]``, the method options of ``popvol render`` and ``popvol compare``
+(:func:`cli_knobs`), the tables of docs/SCENE.md (:func:`knob_table_markdown`) and the tables a
+scene file is written with (:func:`method_tables`).
+
+The default method is the product. Experimental knobs select the variants measured in
+docs/ACCURACY.md (several of them 2-17x further from Mitsuba than the default); a scene file
+sets them in an ``[experimental]`` table, Python code as ``Method`` fields or keyword
+arguments of ``load_scene``. The command line does not offer them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, make_dataclass
+
+from . import check
+from .errors import PopvolError
+
+
+@dataclass(frozen=True)
+class Knob:
+    """One method setting.
+
+    name: the ``Method`` field and the scene-file key.
+    default: its value when not given; its type (int, float, str) is the knob's type.
+    allowed: (lo, hi) for a number, the allowed strings for a string.
+    help: one line, for ``--help`` and the start of the docs' meaning column.
+    doc: the rest of the docs' meaning column.
+    experimental: set in ``[experimental]``, not in ``[method]``; not on the command line.
+    zero: 0 is allowed besides [lo, hi] (it means "automatic").
+    cli: the commands (``"render"``, ``"compare"``) that offer ``--name``.
+    default_text, allowed_text: what docs/SCENE.md shows instead of the plain default/range.
+    """
+
+    name: str
+    default: int | float | str
+    allowed: tuple
+    help: str
+    doc: str = ""
+    experimental: bool = False
+    zero: bool = False
+    cli: tuple[str, ...] = ()
+    default_text: str = ""
+    allowed_text: str = ""
+
+    @property
+    def table(self) -> str:
+        """The scene-file table the knob is written in."""
+        return "experimental" if self.experimental else "method"
+
+    @property
+    def type(self) -> type:
+        return type(self.default)
+
+    @property
+    def option(self) -> str:
+        """The command-line option, ``--max-iterations`` for ``max_iterations``."""
+        return "--" + self.name.replace("_", "-")
+
+    def check(self, value, src: str, name: str | None = None):
+        """``value`` validated (as int, float or str), or a one-line PopvolError naming
+        ``name`` (default: ``table.name``)."""
+        name = name or f"{self.table}.{self.name}"
+        if self.type is str:
+            return check.choice(value, name, src, self.allowed)
+        lo, hi = self.allowed
+        if self.type is int:
+            if self.zero and _is_zero(value):
+                return 0
+            try:
+                return check.integer(value, name, src, lo, hi)
+            except PopvolError:
+                if not self.zero:
+                    raise
+                raise PopvolError(f"{src}: {name} = {check._show(value)} must be 0 or an integer "
+                                  f"in [{lo}, {hi}]") from None
+        return check.number(value, name, src, lo, hi)
+
+
+def _is_zero(value) -> bool:
+    return check._is_int(value) and int(value) == 0
+
+
+KNOBS: tuple[Knob, ...] = (
+    Knob("resolution", 128, (2, 4096), "Cells along the longest side of each light's propagation domain.",
+         cli=("render", "compare")),
+    Knob("solver", "sweep", ("sweep", "jacobi"), "Propagation solver.",
+         "Gauss-Seidel sweeps along the light (fast) or the Jacobi wavefront (reference semantics: "
+         "each iteration moves every packet one cell). Point lights always sweep.",
+         experimental=True),
+    Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
+         "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
+         "(the paper's rule).", experimental=True),
+    Knob("decay", "poisson", ("poisson", "paper"), "Anisotropy decay over a step s.",
+         "exp(-sigma_s s (1 - g)) or g^(sigma_s s) (supplement Eq. 12; needs g >= 0).",
+         experimental=True),
+    Knob("isotropic", "diffusion", ("diffusion", "walk"), "What happens to light whose lobe has spread.",
+         "It is handed to a diffusion solve with the physical coefficient D = 1 / (3 sigma_tr) "
+         "(`popvol/diffusion.py`), or it keeps walking cell by cell (the papers' POP); see the "
+         "README on bias.", experimental=True),
+    Knob("handover_scale", 2.0, (0.0, 100.0), "Hand-over threshold of the diffusion stage.",
+         "With `isotropic = \"diffusion\"`: a packet leaves the walk when its anisotropy "
+         "\\|a\\| < handover_scale * (1 - exp(-sigma_tr h)), h the cell size, sigma_tr = sigma_a + "
+         "sigma_s (1 - g): a threshold in the medium's transport mean free paths, so images do not "
+         "change with the grid.", experimental=True),
+    Knob("diffusion_resolution", 64, (0, 4096), "Cells along the longest side of the diffusion grid.",
+         "Its cells are blocks of the light's domain; 0 = the domain's own cells."),
+    Knob("environment_resolution", 64, (2, 4096), "`resolution` of the domains of an environment's lights.",
+         "Soft light needs fewer cells; 0 = `resolution`.", zero=True),
+    Knob("tolerance", 1e-3, (1e-12, 1.0), "Stop when the energy in flight is below tolerance * injected."),
+    Knob("max_iterations", 0, (0, 10_000_000), "Cap on iterations; 0 = automatic.",
+         "A capped run is reported as not converged in `--stats`.",
+         default_text="0 (automatic: 400 sweeps, or 40 x the domain's perimeter for Jacobi)"),
+    Knob("step", 0.5, (1e-3, 16.0), "Ray-marching step, in voxels of the medium."),
+    Knob("spp", 1, (1, 4096), "Jittered camera rays per pixel.", cli=("render", "compare")),
+    Knob("exposure", 0.0, (-64.0, 64.0), "PNG exposure in stops.", "The EXR stays linear.",
+         cli=("render",)),
+    Knob("seed", 0, (0, 2**63 - 1), "Seed of the pixel jitter.", allowed_text="[0, 2^63 - 1]"),
+)
+
+#: Knobs by name.
+KNOB: dict[str, Knob] = {k.name: k for k in KNOBS}
+
+
+class _MethodBase:
+    """Behaviour of :class:`Method` (its fields come from :data:`KNOBS`)."""
+
+    def validate(self, src: str):
+        """Check every field (a one-line PopvolError naming ``src`` and the field) and store
+        it as int, float or str. Returns self."""
+        for k in KNOBS:
+            setattr(self, k.name, k.check(getattr(self, k.name), src))
+        return self
+
+    def experimental_changes(self) -> dict:
+        """The experimental knobs that differ from their default, as {name: value}."""
+        return {k.name: getattr(self, k.name) for k in KNOBS
+                if k.experimental and getattr(self, k.name) != k.default}
+
+
+def _method_doc() -> str:
+    lines = ["How the light is propagated and the image rendered (docs/SCENE.md, ``[method]`` and",
+             "``[experimental]``). One field per knob of :data:`popvol.method.KNOBS`:", ""]
+    for k in KNOBS:
+        tag = " (experimental)" if k.experimental else ""
+        lines.append(f"{k.name}{tag}: {k.help} Default {k.default!r}.")
+    return "\n".join(lines)
+
+
+Method = make_dataclass(
+    "Method", [(k.name, k.type, field(default=k.default)) for k in KNOBS], bases=(_MethodBase,),
+    namespace={"__module__": __name__, "__doc__": _method_doc()})
+
+
+def method_from_tables(method_table, experimental_table, src: str) -> "Method":
+    """A validated Method from a scene's ``[method]`` and ``[experimental]`` tables (dicts)."""
+    given = {}
+    for table_name, tbl, experimental in (("method", method_table, False),
+                                          ("experimental", experimental_table, True)):
+        tbl = check.table(tbl, table_name, src)
+        if "handover" in tbl:
+            raise PopvolError(f"{src}: {table_name}.handover (a fixed |a| threshold) was replaced by "
+                              "experimental.handover_scale (the threshold per cell is handover_scale * "
+                              "(1 - exp(-sigma_tr s)), default 2; see docs/SCENE.md): remove the key or rename it")
+        for key in tbl:
+            k = KNOB.get(key)
+            if k is not None and k.experimental != experimental:
+                what = ("an experimental knob: move it to an [experimental] table" if k.experimental
+                        else "not an experimental knob: move it to the [method] table")
+                raise PopvolError(f"{src}: {table_name}.{key} is {what}")
+        check.known_keys(tbl, [k.name for k in KNOBS if k.experimental == experimental], f"{table_name}.", src)
+        given.update(tbl)
+    return Method(**given).validate(src)
+
+
+def method_tables(method) -> dict:
+    """The scene-file tables of ``method``: {"method": every non-experimental knob,
+    "experimental": the experimental knobs that differ from their default (often empty)}.
+    Values are plain int, float and str (TOML-writable)."""
+    plain = {int: int, float: float, str: str}
+    out = {"method": {}, "experimental": {}}
+    for k in KNOBS:
+        v = plain[k.type](getattr(method, k.name))
+        if not k.experimental:
+            out["method"][k.name] = v
+        elif v != k.default:
+            out["experimental"][k.name] = v
+    return out
+
+
+def cli_knobs(command: str) -> list[Knob]:
+    """The knobs offered as ``--name`` options by ``popvol COMMAND``."""
+    return [k for k in KNOBS if command in k.cli]
+
+
+def knob_table_markdown(experimental: bool = False) -> str:
+    """The docs/SCENE.md table of the ``[method]`` (or ``[experimental]``) knobs."""
+    rows = ["| key | type | default | allowed | meaning |", "|---|---|---|---|---|"]
+    for k in KNOBS:
+        if k.experimental != experimental:
+            continue
+        kind = {int: "integer", float: "number", str: "string"}[k.type]
+        if k.type is str:
+            default = f'`"{k.default}"`'
+            allowed = ", ".join(f'`"{a}"`' for a in k.allowed)
+        else:
+            default = k.default_text or check._fmt(k.default)
+            lo, hi = k.allowed
+            allowed = k.allowed_text or f"{'0 or ' if k.zero else ''}[{check._fmt(lo)}, {check._fmt(hi)}]"
+        meaning = " ".join(s for s in (k.help, k.doc) if s)
+        rows.append(f"| `{k.name}` | {kind} | {default} | {allowed} | {meaning} |")
+    return "\n".join(rows)
+
+
+__all__ = ["Knob", "KNOBS", "KNOB", "Method", "method_from_tables", "method_tables", "cli_knobs",
+           "knob_table_markdown"]
