@@ -1,7 +1,7 @@
 """The diffusion stage (popvol/diffusion.py): its operator against a sparse matrix assembled
 here from the finite-volume formulas, its solver against scipy's direct solve, energy
 conservation, the analytic point-source solution of the diffusion equation, and the narrow-beam
-Monte Carlo of the core issue, where the hybrid walk + diffusion converges under refinement."""
+Monte Carlo of test_beam.py, where the hybrid walk + diffusion converges under refinement."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -9,7 +9,7 @@ import scipy.sparse.linalg as spla
 
 from popvol import diffusion
 from popvol.kernels import diffusion as K
-from popvol.propagate import medium_factors, propagate
+from popvol.walk import handover_factor, medium_factors, walk_box
 
 
 def random_medium(rng, shape, empty=0.2):
@@ -152,8 +152,9 @@ def hybrid_beam(n, handover=6.0):
     c = (np.arange(n) + 0.5) * h - 0.5
     inside = np.abs(c) < HALFWIDTH
     inj = (inside[:, None] & inside[None, :]).astype(np.float32) * h * h
-    r = propagate(Th, Dh, inj, 1.0, h, tolerance=1e-5, isotropic="diffusion", handover=handover,
-                  medium=(st, ss, g))
+    r = walk_box(Th, Dh, inj, 1.0, h, tolerance=1e-5, handover=(handover, handover_factor(st, ss, g, h)))
+    r.diffusion = diffusion.solve_diffusion(*r.handed, st, ss, g, h, rtol=1e-6)   # the pipeline's diffusion stage
+    r.budget.add_diffusion(r.diffusion)
     b = r.budget
     r2 = c[:, None] ** 2 + c[None, :] ** 2
     phi = r.phi.astype(np.float64) + r.diffusion.phi
@@ -181,7 +182,7 @@ def test_hybrid_beam_converges_under_refinement_and_is_near_monte_carlo():
 
 
 def test_boundary_weight_kernel_equals_numpy_twin(rng):
-    from popvol.kernels import reference as ref
+    import twins as ref
     for shape in ((9, 7, 8), (5, 1, 6)):
         mask = rng.random(shape) > 0.4
         np.testing.assert_allclose(diffusion.boundary_weight(mask), ref.boundary_weight(mask), rtol=1e-5, atol=1e-6)

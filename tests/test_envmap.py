@@ -9,7 +9,7 @@ import popvol
 from popvol import envmap
 from popvol.errors import PopvolError
 from popvol.io.images import write_exr
-from popvol.kernels import reference as ref
+import twins as ref
 from popvol.render import render
 from popvol.scene import scene_from_dict
 

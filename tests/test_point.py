@@ -5,17 +5,17 @@ from brute import density_sampler, view_march
 
 from popvol import PopvolError, hg, scene_from_dict
 from popvol.camera import Camera
-from popvol.domains import spherical_domain
-from popvol.kernels import reference as ref
+from popvol.lights.point import spherical_domain
+import twins as ref
 from popvol.kernels import spherical as KS
 from popvol.kernels.propagation import band_edges
 from popvol.lights import PointLight
 from popvol.medium import Medium
-from popvol.propagate import medium_factors, solve, split_table32, voxels_seen
+from popvol.pipeline import point_fields, solve, solve_light, voxels_seen
 from popvol.render import render
 from popvol.scene import Method, Scene
 from popvol.kernels.render import point_lookup
-from popvol.spherical import inverse_area, point_fields, solve_point_light, transfer_lengths
+from popvol.walk import medium_factors, split_table32
 
 POSITIONS = {"inside": [0.5, 0.5, 0.5], "off-centre": [0.3, 0.62, 0.45],
              "close above": [0.5, 1.2, 0.5], "far": [3.0, 0.8, 0.4]}
@@ -36,7 +36,7 @@ def test_vacuum_fluence_is_the_inverse_square_law(where):
     power (4 pi I on a full sphere, I times the cone's solid angle otherwise) leaves through
     the outer sphere, and the r^2-weighted field the renderer looks up is I everywhere."""
     med = blob(tau=0.0)
-    ds = solve_point_light(med, PointLight(POSITIONS[where], 1.0), Method(resolution=20, isotropic="walk"))
+    ds = solve_light(med, PointLight(POSITIONS[where], 1.0), Method(resolution=20, isotropic="walk"))
     dom, r = ds.domain, ds.result
     assert dom.full == (where != "far")
     np.testing.assert_allclose(r.phi, np.broadcast_to(1.0 / dom.radii[:, None, None] ** 2, dom.shape), rtol=1e-6)
@@ -75,10 +75,9 @@ def test_cone_holds_the_box_and_the_full_sphere_covers_4_pi():
 
 def _random_domain_state(dom, rng, tau):
     med = blob(n=12, tau=tau, albedo=0.8, g=0.5)
-    from popvol.spherical import resample_medium
-    sigma_t, sigma_s, g = resample_medium(med, dom)
+    sigma_t, sigma_s, g = dom.resample(med)
     factors = []
-    for s in transfer_lengths(dom):
+    for s in dom.transfer_lengths():
         factors += list(medium_factors(sigma_t, sigma_s, g, s, "poisson"))
     Tr, Dr, Tt, Dt, Tp, Dp = factors
     R = rng.random(dom.shape).astype(np.float32)
@@ -95,7 +94,7 @@ def test_spherical_sweep_kernel_equals_numpy_twin(where, forward, flip, handover
     dom = spherical_domain(blob(n=12), np.array(POSITIONS[where]), 12)
     (sigma_t, sigma_s), F, R, Ra = _random_domain_state(dom, rng, tau=6.0)
     diffusive = np.where((sigma_s > 0) & (sigma_t > 0), 1.0, 0.0).astype(np.float32)
-    inv_area = inverse_area(dom)
+    inv_area = dom.inverse_area()
     w_min = float(np.quantile(R, 0.3))
     out = {}
     for impl in ("numba", "numpy"):
@@ -132,7 +131,7 @@ def test_spherical_sweep_kernel_equals_numpy_twin(where, forward, flip, handover
 def test_energy_budget_balances_and_a_white_medium_absorbs_nothing(where, isotropic):
     for albedo in (1.0, 0.7):
         med = blob(n=16, tau=8.0, albedo=albedo)
-        ds = solve_point_light(med, PointLight(POSITIONS[where], 1.0),
+        ds = solve_light(med, PointLight(POSITIONS[where], 1.0),
                                Method(resolution=20, isotropic=isotropic, tolerance=1e-4, max_iterations=2000))
         b = ds.result.budget
         assert ds.result.converged
@@ -151,7 +150,7 @@ def test_budget_balances_with_empty_cells_and_the_diffusion_stage(where):
     scene = scene_from_dict({"medium": {"type": "procedural", "resolution": 24},
                              "lights": [{"type": "point", "position": where, "intensity": 1.0}],
                              "method": {"resolution": 24, "diffusion_resolution": 16}})
-    ds = solve_point_light(scene.medium, scene.lights[0], scene.method)
+    ds = solve_light(scene.medium, scene.lights[0], scene.method)
     b = ds.result.budget
     assert ds.result.diffusion.source > 0.01 * b.injected
     assert abs(b.balance_error) < 1e-5, b.as_dict()
@@ -240,7 +239,7 @@ def test_scene_file_point_light_and_bad_input(tmp_path):
 def test_paper_decay_with_negative_g_is_refused_for_point_lights_too():
     med = blob(n=8, tau=1.0, g=-0.3)
     with pytest.raises(PopvolError, match="decay = 'paper'.*g >= 0"):
-        solve_point_light(med, PointLight([0.5, 0.5, 0.5], 1.0), Method(resolution=8, decay="paper"))
+        solve_light(med, PointLight([0.5, 0.5, 0.5], 1.0), Method(resolution=8, decay="paper"))
 
 
 def test_point_fields_reach_every_voxel_the_renderer_reads():

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from popvol.kernels import propagation as K
-from popvol.kernels import reference as ref
+import twins as ref
 from popvol.lights import DirectionalLight
 from popvol.medium import Medium
-from popvol.propagate import medium_factors, propagate, solve_light, split_table
+from popvol.pipeline import solve_light
+from popvol.walk import medium_factors, split_table, walk_box
 from popvol.scene import Method
 
 SOLVERS = ("sweep", "jacobi")
@@ -27,7 +28,7 @@ def test_vacuum_all_injected_energy_leaves(solver, a0):
     shape, h = (12, 7, 9), 0.1
     Th, Dh = uniform_factors(shape, 0.0, 1.0, 0.5, h)
     inj = np.full(shape[1:], h * h, np.float32)
-    r = propagate(Th, Dh, inj, a0, h, solver=solver, tolerance=1e-7)
+    r = walk_box(Th, Dh, inj, a0, h, solver=solver, tolerance=1e-7)
     b = r.budget
     assert b.absorbed == 0.0
     assert b.escaped == pytest.approx(b.injected, rel=1e-5)
@@ -44,7 +45,7 @@ def test_conservative_medium_creates_and_loses_nothing(solver, rule, rng):
     density = rng.random(shape).astype(np.float32) * 40
     Th, Dh = medium_factors(density, density, np.full(shape, 0.7, np.float32), h, "poisson")
     inj = np.full(shape[1:], h * h, np.float32)
-    r = propagate(Th, Dh, inj, 1.0, h, rule=rule, solver=solver, tolerance=1e-6)
+    r = walk_box(Th, Dh, inj, 1.0, h, rule=rule, solver=solver, tolerance=1e-6)
     b = r.budget
     assert b.absorbed == 0.0
     assert b.escaped + b.in_flight == pytest.approx(b.injected, rel=1e-5)
@@ -57,7 +58,7 @@ def test_absorbed_share_matches_transmittance(solver):
     shape = (n, 4, 5)
     Th, Dh = uniform_factors(shape, sigma_a, 0.0, 0.0, h)
     inj = np.full(shape[1:], h * h, np.float32)
-    r = propagate(Th, Dh, inj, 1.0, h, solver=solver, tolerance=1e-9)
+    r = walk_box(Th, Dh, inj, 1.0, h, solver=solver, tolerance=1e-9)
     T = np.exp(-sigma_a * n * h)
     assert r.budget.transmitted / r.budget.injected == pytest.approx(T, rel=1e-5)
     assert r.budget.absorbed / r.budget.injected == pytest.approx(1 - T, rel=1e-5)
@@ -208,7 +209,7 @@ def test_solvers_agree_exactly_when_the_balance_is_linear(rng):
     density = (rng.random(shape) * 30).astype(np.float32)
     Th, Dh = medium_factors(density, 0.9 * density, np.zeros(shape, np.float32), h, "paper")
     inj = np.full(shape[1:], h * h, np.float32)
-    rs = [propagate(Th, Dh, inj, 1.0, h, rule="paper", solver=s, tolerance=1e-8, max_iterations=100000)
+    rs = [walk_box(Th, Dh, inj, 1.0, h, rule="paper", solver=s, tolerance=1e-8, max_iterations=100000)
           for s in SOLVERS]
     np.testing.assert_allclose(rs[0].phi, rs[1].phi, rtol=1e-4, atol=1e-6 * rs[1].phi.max())
     for key in ("reflected", "transmitted", "side", "absorbed"):
@@ -224,7 +225,7 @@ def test_solvers_agree_at_convergence(rule, rng):
     density = (rng.random(shape) * 40).astype(np.float32)
     Th, Dh = medium_factors(density, 0.95 * density, np.full(shape, 0.8, np.float32), h, "poisson")
     inj = np.full(shape[1:], h * h, np.float32)
-    rs = [propagate(Th, Dh, inj, 1.0, h, rule=rule, solver=s, tolerance=1e-6, max_iterations=100000)
+    rs = [walk_box(Th, Dh, inj, 1.0, h, rule=rule, solver=s, tolerance=1e-6, max_iterations=100000)
           for s in SOLVERS]
     inj_total = rs[0].budget.injected
     for key in ("reflected", "transmitted", "side", "absorbed"):
@@ -244,7 +245,7 @@ def pop_slab(tau, albedo, g, rule, decay, n=32, solver="sweep"):
     shape = (n, 2, 2)
     sigma_t = np.full(shape, tau, np.float32)
     Th, Dh = medium_factors(sigma_t, albedo * sigma_t, np.full(shape, g, np.float32), h, decay)
-    r = propagate(Th, Dh, np.full(shape[1:], h * h, np.float32), 1.0, h, rule=rule, solver=solver,
+    r = walk_box(Th, Dh, np.full(shape[1:], h * h, np.float32), 1.0, h, rule=rule, solver=solver,
                   tolerance=1e-7, max_iterations=200000, periodic=True)
     b = r.budget
     return b.transmitted / b.injected, b.reflected / b.injected

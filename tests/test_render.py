@@ -6,10 +6,10 @@ from brute import density_sampler, view_march
 
 from popvol import hg
 from popvol.camera import Camera
-from popvol.kernels import reference as ref
+import twins as ref
 from popvol.lights import DirectionalLight
 from popvol.medium import Medium
-from popvol.propagate import solve
+from popvol.pipeline import solve
 from popvol.render import render
 from popvol.scene import Method, Scene
 
@@ -163,9 +163,8 @@ def test_jitter_is_deterministic_and_unbiased():
 
 def test_fields_are_only_needed_next_to_the_medium(monkeypatch):
     """solve() resamples the fields only at voxels within one voxel of non-zero density
-    (propagate.voxels_seen); rendering with fields everywhere gives the same image exactly."""
-    import importlib
-    P = importlib.import_module("popvol.propagate")    # popvol.propagate is also a function name
+    (pipeline.voxels_seen); rendering with fields everywhere gives the same image exactly."""
+    from popvol import pipeline as P
     med = blob_medium(peak_tau=1.0)
     rho = med.density.copy()
     rho[:, :, :8] = 0.0                                    # an empty third, with a sharp edge

@@ -1,7 +1,7 @@
 """popvol: interactive multiple scattering in participating media by Principal-Ordinate
 Propagation (Elek, Ritschel, Dachsbacher, Seidel 2014).
 
-The whole pipeline in three names::
+The whole pipeline in a few names::
 
     import popvol
     scene = popvol.load_scene("examples/demo.toml")   # or load_scene() for the built-in demo
@@ -10,11 +10,15 @@ The whole pipeline in three names::
     popvol.write_image("cloud.png", image, scene.method.exposure)
 """
 from .errors import PopvolError
-from .scene import Scene, Method, load_scene, scene_from_dict
-from .propagate import solve, propagate, Solution
-from .render import render
 from .io.images import write_image
+from .lights import DirectionalLight, PointLight
+from .medium import Medium
+from .method import Method
+from .pipeline import solve
+from .render import render
+from .results import Solution
+from .scene import Scene, load_scene, scene_from_dict
 
-__all__ = ["PopvolError", "Scene", "Method", "load_scene", "scene_from_dict", "solve", "propagate",
-           "Solution", "render", "write_image"]
+__all__ = ["PopvolError", "Scene", "Method", "Medium", "DirectionalLight", "PointLight", "load_scene",
+           "scene_from_dict", "solve", "Solution", "render", "write_image"]
 __version__ = "0.1.0"

@@ -20,8 +20,9 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
-from .domains import directional_domain
-from .propagate import medium_factors, propagate, resample_medium, solve
+from .domains import directional_domain, resample_medium
+from .pipeline import solve
+from .walk import medium_factors, walk_box
 from .render import render
 from .scene import DEMO_SCENE, load_scene, scene_from_dict
 
@@ -67,8 +68,8 @@ def bench_propagation(resolution: int, repeat: int, width=640, height=360) -> di
     inj = np.full(dom.shape[1:], dom.h ** 2, np.float32)
     out = {"resolution": resolution, "shape": list(dom.shape), "cells": dom.n_cells}
     for solver, iters in (("sweep", 8), ("jacobi", 8)):
-        run = lambda: propagate(Th, Dh, inj, 1.0, dom.h, solver=solver, tolerance=1e-30, max_iterations=iters)
-        propagate(Th, Dh, inj, 1.0, dom.h, solver=solver, tolerance=1e-30, max_iterations=2)  # compile
+        run = lambda: walk_box(Th, Dh, inj, 1.0, dom.h, solver=solver, tolerance=1e-30, max_iterations=iters)
+        walk_box(Th, Dh, inj, 1.0, dom.h, solver=solver, tolerance=1e-30, max_iterations=2)  # compile
         t = _time(run, repeat)
         out[f"{solver}_cell_updates_per_s"] = iters * dom.n_cells / t
     R = np.random.default_rng(0).random(dom.shape, dtype=np.float32)

@@ -1,7 +1,5 @@
-"""Light-aligned propagation domains (METHOD.md step 2, RECONSTRUCTION.md 2.4).
-
-Directional lights get a rectilinear grid (below); point lights a spherical one
-(:class:`SphericalDomain`, further down).
+"""Rectilinear light-aligned grids: a sun's domain and every diffusion grid (docs/METHOD.md,
+"Walk"), the medium's optics sampled at their cells, and the memory check before allocating.
 
 A directional light gets a rectilinear grid of cubic cells whose first axis is the light's
 direction of travel d (its principal ordinate); the other two axes u, v complete a right-handed
@@ -20,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import PopvolError
+from .kernels.sampling import resample
 from .medium import Medium
 
 #: Working-set bytes per domain cell (float32 arrays): the solvers hold Th, Dh, in-flight W and
@@ -59,6 +58,10 @@ class DirectionalDomain:
     def n_cells(self) -> int:
         return int(np.prod(self.shape))
 
+    @property
+    def cell_size(self) -> float:
+        return self.h
+
     def world_to_index(self, x: np.ndarray) -> np.ndarray:
         """Continuous cell index (centres at integers) of world points x (..., 3)."""
         return (np.asarray(x) - self.origin) @ self.frame.T / self.h - 0.5
@@ -88,142 +91,29 @@ def directional_domain(medium: Medium, direction: np.ndarray, resolution: int) -
     return dom
 
 
-@dataclass
-class SphericalDomain:
-    """A point light's domain: cells in spherical coordinates (r, theta, phi) about the light,
-    the principal ordinate radial (index k along r, as a directional domain's k runs along d).
-
-    The direction of (theta, phi) is ``sin(theta) cos(phi) e1 + sin(theta) sin(phi) e2 +
-    cos(theta) e3`` with frame rows e1, e2, e3. Cell (k, i, j) spans r in r0 + [k, k + 1] dr,
-    theta in theta0 + [i, i + 1] dtheta, phi in phi0 + [j, j + 1] dphi; its centre is at the
-    middle of each range.
-
-    Two layouts:
-      * ``full`` (light inside the medium's box or close to it): the whole sphere, theta in
-        [0, pi], phi in [0, 2 pi) periodic; n_phi is even so that a step across a pole lands in
-        the cell opposite (phi + pi), and light sent back through the inner sphere comes out
-        of the antipodal cell.
-      * otherwise, a cone about the axis e1 (from the light to the box's centre) that holds the
-        box: latitude and longitude both in [-alpha, alpha] about e1 (theta = pi/2 - latitude),
-        so no pole is inside it; its lateral faces are open.
-
-    Attributes:
-        centre: float64 (3,), the light's position.
-        frame: float64 (3, 3), rows e1, e2, e3 (orthonormal, right-handed).
-        r0, dr, theta0, dtheta, phi0, dphi: floats (world units and radians).
-        shape: (n_r, n_theta, n_phi).
-        full: the whole sphere (see above).
-    """
-
-    centre: np.ndarray
-    frame: np.ndarray
-    r0: float
-    dr: float
-    theta0: float
-    dtheta: float
-    phi0: float
-    dphi: float
-    shape: tuple[int, int, int]
-    full: bool
-
-    @property
-    def n_cells(self) -> int:
-        return int(np.prod(self.shape))
-
-    @property
-    def radii(self) -> np.ndarray:
-        """float64 (n_r,): the radius of each shell's cell centres."""
-        return self.r0 + (np.arange(self.shape[0]) + 0.5) * self.dr
-
-    @property
-    def thetas(self) -> np.ndarray:
-        return self.theta0 + (np.arange(self.shape[1]) + 0.5) * self.dtheta
-
-    @property
-    def solid_angles(self) -> np.ndarray:
-        """float64 (n_theta,): the exact solid angle of a cell of each row,
-        (cos theta_lo - cos theta_hi) dphi; they sum to 4 pi over a full sphere."""
-        edges = self.theta0 + np.arange(self.shape[1] + 1) * self.dtheta
-        return (np.cos(edges[:-1]) - np.cos(edges[1:])) * self.dphi
-
-    @property
-    def params(self) -> np.ndarray:
-        """float64 (6,): r0, dr, theta0, dtheta, phi0, dphi (what the kernels take)."""
-        return np.array([self.r0, self.dr, self.theta0, self.dtheta, self.phi0, self.dphi])
-
-    def index_to_world(self, q: np.ndarray) -> np.ndarray:
-        """World position of continuous cell index q (..., 3) (centres at integers)."""
-        q = np.asarray(q, np.float64)
-        r = self.r0 + (q[..., 0] + 0.5) * self.dr
-        t = self.theta0 + (q[..., 1] + 0.5) * self.dtheta
-        p = self.phi0 + (q[..., 2] + 0.5) * self.dphi
-        local = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
-        return self.centre + r[..., None] * (local @ self.frame)
-
-
-#: A cone wider than this (half-angle) becomes a full sphere: its corners would be too distorted.
-MAX_CONE_HALF_ANGLE = np.radians(60.0)
-#: Point lights farther than this many medium diagonals are refused (use a sun): the float32
-#: fields could not hold r^2 phi and 1 / r^2 much beyond it.
-MAX_POINT_DISTANCE = 1e6
-
-
-def check_point_distance(medium: Medium, position: np.ndarray, field: str) -> None:
-    """Refuse a point light farther than MAX_POINT_DISTANCE medium diagonals from the medium."""
-    p = np.asarray(position, np.float64)
-    lo, hi = medium.bounds
-    diagonal = float(np.linalg.norm(hi - lo))
-    gap = np.abs(p - np.clip(p, lo, hi)).max()         # before any square can overflow
-    if not gap <= MAX_POINT_DISTANCE * diagonal:
-        raise PopvolError(f"{field}: a point light at {p.tolist()} is {gap:.3g} units from the "
-                          f"medium, more than {MAX_POINT_DISTANCE:g} times its size ({diagonal:.3g}); "
-                          "its light arrives as parallel as a sun's: use a directional light")
-
-
-def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> SphericalDomain:
-    """The domain of a point light at ``position``: shells from the medium's box's nearest to
-    its farthest point, ``resolution`` cells along the longest of the radial extent and the
-    angular extents at the middle radius (for a full sphere, the half circumference), cells
-    of about equal size in the three directions at the middle radius."""
-    p = np.asarray(position, np.float64)
-    lo, hi = medium.bounds
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    check_point_distance(medium, p, medium.source)
-    rel = corners - p
-    r_hi = float(np.linalg.norm(rel, axis=1).max())
-    r_lo = float(np.linalg.norm(p - np.clip(p, lo, hi)))
-    axis = (lo + hi) / 2 - p
-    alpha = np.pi
-    if r_lo > 0:
-        axis = axis / np.linalg.norm(axis)
-        # the angle of each corner from the axis; arctan2 keeps small angles accurate
-        sines = np.linalg.norm(np.cross(rel, axis), axis=1)
-        alpha = float(np.arctan2(sines, rel @ axis).max()) * (1 + 1e-6)
-    r_m = 0.5 * (r_lo + r_hi)
-    if alpha > MAX_CONE_HALF_ANGLE:
-        # poles along world y; e1 x e2 = e3
-        frame = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-        h = max(r_hi - r_lo, np.pi * r_m) / resolution
-        n_t = max(2, int(np.ceil(np.pi * r_m / h - 1e-9)))
-        shape = (max(1, int(np.ceil((r_hi - r_lo) / h - 1e-9))), n_t, 2 * n_t)
-        dom = SphericalDomain(p, frame, r_lo, (r_hi - r_lo) / shape[0], 0.0, np.pi / n_t, 0.0,
-                              np.pi / n_t, shape, True)
+def optics(medium: Medium, grid, shape, channel: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """sigma_t, sigma_s, g (float32 ``shape``) of colour ``channel`` at a domain's cells, where
+    ``grid(values, clamp)`` samples a world voxel grid at those cells (0 outside the grid, or
+    clamped to its edge if ``clamp``: per-voxel albedo and g, where the density is 0 anyway)."""
+    sigma_t = grid(medium.density, False) * np.float32(medium.scale[channel])
+    if medium.albedo_per_voxel:
+        sigma_s = sigma_t * grid(medium.albedo, True)
     else:
-        frame = light_frame(axis)
-        width = 2 * alpha * r_m
-        h = max(r_hi - r_lo, width) / resolution
-        n_a = max(1, int(np.ceil(width / h - 1e-9)))
-        shape = (max(1, int(np.ceil((r_hi - r_lo) / h - 1e-9))), n_a, n_a)
-        dom = SphericalDomain(p, frame, r_lo, (r_hi - r_lo) / shape[0], np.pi / 2 - alpha,
-                              2 * alpha / n_a, -alpha, 2 * alpha / n_a, shape, False)
-    check_memory(dom.n_cells * BYTES_PER_SPHERICAL_CELL, f"{medium.source}: method.resolution = {resolution}",
-                 f"a point light's domain of {shape[0]}x{shape[1]}x{shape[2]} cells")
-    return dom
+        sigma_s = sigma_t * np.float32(medium.albedo[channel])
+    g = grid(medium.g, True) if medium.g_per_voxel else np.full(shape, medium.g, np.float32)
+    return sigma_t, sigma_s, g
 
 
-#: Working-set bytes per spherical cell (float32): R, Ra, phi, phia, six direction-dependent
-#: factors, sigma_t, sigma_s and g while the factors are made, the hand-over's Q (2) and flags.
-BYTES_PER_SPHERICAL_CELL = 4 * 16
+def resample_medium(medium: Medium, domain: DirectionalDomain, channel: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """sigma_t, sigma_s, g of colour ``channel`` at a rectilinear domain's cell centres,
+    float32 (n_d, n_u, n_v) each."""
+    def grid(values, clamp):
+        out = np.empty(domain.shape, np.float32)
+        resample(values, 1.0 / medium.voxel_size, medium.origin, domain.frame, domain.origin,
+                 domain.h, domain.shape, clamp, out)
+        return out
+    return optics(medium, grid, domain.shape, channel)
 
 
 def available_memory() -> int:

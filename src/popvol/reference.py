@@ -15,8 +15,9 @@ empty, an absorbing-only and an optically thin medium):
   Mitsuba's ``directional`` emitter; ``irradiance`` is on a plane facing the light in both. A
   point light is Mitsuba's ``point`` emitter, ``intensity`` in W/sr in both.
 - Background: a ``constant`` emitter with the background radiance. In Mitsuba it also lights the
-  medium, as a sky would; popvol's renderer does not (until environment lights exist), so scenes
-  meant to measure popvol's accuracy use a black background, or a background that is a light.
+  medium, as a sky would; popvol's constant background is only seen, not propagated, so scenes
+  meant to measure popvol's accuracy use a black background, or an environment light (``envmap``
+  or ``sky``), which is exported as Mitsuba's ``envmap`` and lights the medium in both.
 - Camera: ``perspective`` sensor, ``fov_axis = "y"`` (popvol's fov is vertical), ``look_at`` with
   the same origin, target and up; Mitsuba's image x axis runs along -(camera x) of its look-at
   frame, which is popvol's "right" (tests check the orientation with an off-centre blob).
@@ -25,8 +26,9 @@ empty, an absorbing-only and an optically thin medium):
 - Integrator: ``volpath`` with ``max_depth`` (default 1024) and Russian roulette from depth 32.
 
 Reference images are accumulated over passes: ``REF.exr`` holds the mean, ``REF.exr.json`` the
-sample count and provenance, ``REF.exr.npz`` the per-pixel sum and sum of squares of the pass
-means (float64), from which the reference's own noise is estimated.
+sample count and provenance (the scene file relative to the reference's folder, so that the
+metadata names no path of the machine that made it), ``REF.exr.npz`` the per-pixel sum and sum
+of squares of the pass means (float64), from which the reference's own noise is estimated.
 """
 from __future__ import annotations
 
@@ -41,7 +43,6 @@ from pathlib import Path
 import numpy as np
 
 from .errors import PopvolError
-from .lights import PointLight
 from .scene import Scene
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
@@ -130,12 +131,7 @@ def mitsuba_dict(scene: Scene, mi, max_depth: int = 1024, spp: int = 16) -> dict
     for i, light in enumerate(scene.lights):
         if light.from_environment:
             continue
-        if isinstance(light, PointLight):     # intensity [W/sr] in both
-            d[f"light_{i}"] = {"type": "point", "position": light.position.tolist(),
-                               "intensity": {"type": "rgb", "value": light.intensity.tolist()}}
-            continue
-        d[f"light_{i}"] = {"type": "directional", "direction": light.direction.tolist(),
-                           "irradiance": {"type": "rgb", "value": light.irradiance.tolist()}}
+        d[f"light_{i}"] = light.mitsuba()
     return d
 
 
@@ -148,10 +144,7 @@ def scene_digest(scene: Scene) -> str:
               [cam.fov, cam.width, cam.height], scene.background):
         h.update(np.asarray(v, np.float64).tobytes())
     for l in scene.lights:
-        if isinstance(l, PointLight):
-            h.update(b"point" + np.concatenate([l.position, l.intensity]).astype(np.float64).tobytes())
-        else:
-            h.update(np.concatenate([l.direction, l.irradiance]).astype(np.float64).tobytes())
+        h.update(l.digest())
     if scene.environment is not None:
         h.update(np.ascontiguousarray(scene.environment.radiance).tobytes())
     return h.hexdigest()[:16]
@@ -176,6 +169,18 @@ class Reference:
 
 def _sidecars(path: Path) -> tuple[Path, Path]:
     return path.with_name(path.name + ".json"), path.with_name(path.name + ".npz")
+
+
+def _scene_name(source: str, output: Path) -> str:
+    """The scene's file relative to the reference's folder (its name alone where there is no
+    relative path, e.g. on another drive); a source that is not a file (``<demo scene>``) as is."""
+    p = Path(source)
+    if not p.is_file():
+        return source
+    try:
+        return Path(os.path.relpath(p.resolve(), output.resolve().parent)).as_posix()
+    except ValueError:
+        return p.name
 
 
 def load_reference(path) -> Reference:
@@ -251,9 +256,10 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
     mean = mean.astype(np.float32)
     write_exr(output, mean)
     np.savez(sums_path, sum=s, sumsq=s2)
-    meta = {"scene": scene.source, "scene_digest": digest, "spp": done_spp + per_pass * passes,
-            "passes": n, "spp_per_pass": per_pass, "variant": variant, "max_depth": max_depth,
-            "integrator": "volpath", "mitsuba": mi.__version__, "seconds": seconds,
+    meta = {"scene": _scene_name(scene.source, output), "scene_digest": digest,
+            "spp": done_spp + per_pass * passes, "passes": n, "spp_per_pass": per_pass,
+            "variant": variant, "max_depth": max_depth, "integrator": "volpath",
+            "mitsuba": mi.__version__, "seconds": seconds,
             "width": scene.camera.width, "height": scene.camera.height}
     meta_path.write_text(json.dumps(meta, indent=2))
     return load_reference(output)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import PopvolError
 from ..io.images import tonemap, write_image
-from ..propagate import solve
+from ..pipeline import solve
 from ..render import render
 from ..scene import DEMO_SCENE, load_scene
 from . import settings as S
@@ -153,7 +153,7 @@ class Engine:
         for key in keys:
             if key in self._solutions:
                 self._solutions.move_to_end(key)
-                return self._with_irradiance(self._solutions[key], scene), False, key[1]
+                return self._solutions[key].relit(scene.lights), False, key[1]
         key = keys[-1]                      # the scene's own method has this level's cells
         previous = self._last.get(key[1])
         sol = solve(scene, reuse=previous)
@@ -161,14 +161,9 @@ class Engine:
         self._last[key[1]] = sol
         self._solutions[key] = sol
         while len(self._solutions) > 1 and (len(self._solutions) > MAX_SOLUTIONS or sum(
-                solution_bytes(x) for x in self._solutions.values()) > MAX_CACHE_BYTES):
+                x.nbytes for x in self._solutions.values()) > MAX_CACHE_BYTES):
             self._solutions.popitem(last=False)
         return sol, True, key[1]
-
-    @staticmethod
-    def _with_irradiance(solution, scene):
-        power = np.array([light.power for light in scene.lights]).reshape(-1, 3)
-        return replace(solution, irradiance=power)
 
     # -- saving --------------------------------------------------------------------------------
 
@@ -203,11 +198,6 @@ class Engine:
             raise PopvolError(f"{toml}: cannot write ({e})") from None
         write_image(png, f.image, settings.exposure)
         return png, toml
-
-
-def solution_bytes(solution) -> int:
-    """Bytes of a solution's world-grid fields (phi, phia, phid, flux)."""
-    return sum(a.nbytes for a in (solution.phi, solution.phia, solution.phid, solution.flux))
 
 
 def encode_png(image: np.ndarray, exposure: float) -> bytes:

@@ -24,8 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import Camera
+from .. import check
 from ..errors import PopvolError
-from ..lights import DirectionalLight, PointLight
+from ..method import method_tables
 
 #: Allowed range of every setting the page may send: (low, high, open interval?).
 #: ``camera_distance`` is checked against the scene's own distance (see ``distance_range``).
@@ -123,7 +124,7 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_
         lo, hi, open_ = RANGES[name]
         if name == "camera_distance":
             lo, hi = distance_range
-        out[name] = _number(value, name, lo, hi, open_)
+        out[name] = check.number(value, name, "set message", lo, hi, open_)
     return Message("set", out)
 
 
@@ -135,16 +136,6 @@ def _only_keys(msg: dict, known: set, what: str):
     extra = sorted(set(msg) - known)
     if extra:
         raise PopvolError(f"{what} has unknown key(s) {', '.join(map(repr, extra))}")
-
-
-def _number(v, name: str, lo: float, hi: float, open_: bool) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise PopvolError(f"setting {name} = {v!r} must be a finite number")
-    inside = lo < v < hi if open_ else lo <= v <= hi
-    if not inside:
-        brackets = "()" if open_ else "[]"
-        raise PopvolError(f"setting {name} = {v!r} is outside {brackets[0]}{lo:g}, {hi:g}{brackets[1]}")
-    return float(v)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -186,24 +177,25 @@ def _floats(a) -> list[float]:
 def sun_index(scene) -> int | None:
     """Index in scene.lights of the light the sun control moves: the first directional light
     that does not come from an environment map (None if there is none)."""
-    for i, light in enumerate(scene.lights):
-        if isinstance(light, DirectionalLight) and not light.from_environment:
-            return i
-    return None
+    return next((i for i, light in enumerate(scene.lights)
+                 if light.type == "directional" and not light.from_environment), None)
 
 
 def key_index(scene) -> int | None:
     """Index in scene.lights of the light the intensity control scales: the sun, or else the
-    first point light (None if there is neither)."""
+    first light that is not part of an environment (None if there is none)."""
     i = sun_index(scene)
     if i is None:
-        i = next((j for j, light in enumerate(scene.lights) if isinstance(light, PointLight)), None)
+        i = next((j for j, light in enumerate(scene.lights) if not light.from_environment), None)
     return i
 
 
 def key_entry(data: dict, scene) -> int | None:
     """Index in the TOML's [[lights]] list of that same light (None if there is none)."""
-    kind = "directional" if sun_index(scene) is not None else "point"
+    i = key_index(scene)
+    if i is None:
+        return None
+    kind = scene.lights[i].type
     for i, entry in enumerate(_light_list(data)):
         if isinstance(entry, dict) and entry.get("type", "directional") == kind:
             return i
@@ -234,7 +226,7 @@ def initial_settings(scene) -> Settings:
 def scene_values(base, s: Settings, width: int, height: int) -> dict:
     """The TOML values of the view: ``{"medium": {...}, "key": {...} or None, "camera": {...}}``,
     plain floats and lists, computed from the base scene (as loaded) and the settings. "key"
-    holds the key light's new direction and irradiance (a sun) or intensity (a point light)."""
+    holds the key light's table with its power scaled and, for the sun, its new direction."""
     med = base.medium
     medium = {"scale": _grey_or_rgb(np.asarray(med.scale) * s.density)}
     if s.albedo is not None:
@@ -244,12 +236,10 @@ def scene_values(base, s: Settings, width: int, height: int) -> dict:
     key = None
     i = key_index(base)
     if i is not None:
-        light = base.lights[i]
-        if isinstance(light, DirectionalLight):
-            key = {"direction": _floats(-direction_of(s.sun_azimuth, s.sun_elevation, SKY)),
-                   "irradiance": _floats(light.irradiance * s.intensity)}
-        else:
-            key = {"intensity": _floats(light.intensity * s.intensity)}
+        key = base.lights[i].scaled(s.intensity).table()
+        del key["type"]
+        if i == sun_index(base):
+            key["direction"] = _floats(-direction_of(s.sun_azimuth, s.sun_elevation, SKY))
     cam = base.camera
     offset = s.camera_distance * direction_of(s.camera_azimuth, s.camera_elevation, orbit_frame(cam.up))
     camera = {"origin": _floats(cam.target + offset), "target": _floats(cam.target),
@@ -274,11 +264,7 @@ def build_scene(base, values: dict, medium, method):
     key = values["key"]
     if key is not None:
         i = key_index(base)
-        old = lights[i]
-        if isinstance(old, DirectionalLight):
-            lights[i] = DirectionalLight(key["direction"], key["irradiance"], a0=old.a0, source=old.source)
-        else:
-            lights[i] = replace(old, intensity=key["intensity"])
+        lights[i] = replace(lights[i], **key)
     c = values["camera"]
     camera = Camera(c["origin"], c["target"], c["up"], c["fov"], c["width"], c["height"], source=base.camera.source)
     return replace(base, medium=medium, lights=lights, camera=camera, method=method)
@@ -303,7 +289,11 @@ def scene_toml(data: dict, base_dir: Path, values: dict, method, base) -> dict:
     if values["key"] is not None:
         out["lights"][key_entry(out, base)].update(values["key"])
     out["camera"] = dict(values["camera"])
-    out["method"] = {k: v for k, v in vars(method).items()}
+    out.pop("experimental", None)
+    tables = method_tables(method)
+    out["method"] = tables["method"]
+    if tables["experimental"]:
+        out["experimental"] = tables["experimental"]
     return out
 
 

@@ -1,0 +1,341 @@
+"""A point light and its domain: cells in spherical coordinates about the light, the principal
+ordinate radial (docs/METHOD.md, "Walk").
+
+The walk sweeps along r (kernels/spherical.py) from unit intensity at the light. The walk's
+fields stay in the spherical domain, multiplied by r^2, and the renderer looks them up there per
+sample (:meth:`SphericalDomain.render_block`). Light handed over goes to a world-aligned
+rectilinear grid for the diffusion stage (:meth:`SphericalDomain.hand_over`). Point lights
+always use the sweep solver (experimental.solver = "jacobi" applies to suns only).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numba
+import numpy as np
+
+from .. import check
+from ..diffusion import coefficients
+from ..domains import check_memory, directional_domain, light_frame, optics, resample_medium
+from ..errors import PopvolError
+from ..kernels import propagation as KP
+from ..kernels import spherical as KS
+from ..medium import Medium
+from ..results import Budget, WalkResult
+from ..walk import (default_max_iterations, direct_fluence, handover_arrays, handover_factor,
+                    medium_factors, split_table32, sweep_until_converged)
+from .base import HandOver, Light
+
+
+@dataclass
+class PointLight(Light):
+    """An isotropic point light: intensity I [W/sr per RGB channel] in all directions from its
+    position; in vacuum its fluence at distance r is I / r^2.
+
+    Attributes:
+        position: float64 (3,), world position.
+        intensity: float64 (3,), RGB radiant intensity [W/sr], >= 0.
+    """
+
+    type: ClassVar[str] = "point"
+    keys: ClassVar[frozenset] = frozenset({"type", "position", "intensity"})
+    fields_in_domain: ClassVar[bool] = True
+
+    position: np.ndarray
+    intensity: np.ndarray
+    source: str = "<light>"
+    from_environment: bool = False
+
+    def __post_init__(self):
+        self.position = check.vector(self.position, "position", self.source)
+        self.intensity = check.rgb(self.intensity, "intensity", self.source)
+
+    @classmethod
+    def from_table(cls, t: dict, name: str, src: str) -> "PointLight":
+        if "position" not in t:
+            raise PopvolError(f"{src}: {name}.position is required (the light's world position)")
+        return cls(check.vector(t["position"], f"{name}.position", src),
+                   check.rgb(t.get("intensity", 1.0), f"{name}.intensity", src), source=f"{src}: {name}")
+
+    @property
+    def power(self) -> np.ndarray:
+        return self.intensity
+
+    @property
+    def render_position(self) -> np.ndarray:
+        return self.position
+
+    def key(self) -> tuple:
+        return ("point", tuple(self.position))
+
+    def check(self, medium) -> None:
+        check_point_distance(medium, self.position, f"{self.source}.position")
+
+    def domain(self, medium, method) -> "SphericalDomain":
+        return spherical_domain(medium, self.position, method.resolution)
+
+    def table(self) -> dict:
+        return {"type": self.type, "position": [float(x) for x in self.position],
+                "intensity": [float(x) for x in self.intensity]}
+
+    def scaled(self, factor: float) -> "PointLight":
+        return PointLight(self.position, self.intensity * factor, self.source, self.from_environment)
+
+    def mitsuba(self) -> dict:
+        # intensity [W/sr] in both
+        return {"type": "point", "position": self.position.tolist(),
+                "intensity": {"type": "rgb", "value": self.intensity.tolist()}}
+
+    def digest(self) -> bytes:
+        return b"point" + np.concatenate([self.position, self.intensity]).astype(np.float64).tobytes()
+
+@dataclass
+class SphericalDomain:
+    """A point light's domain: cells in spherical coordinates (r, theta, phi) about the light,
+    the principal ordinate radial (index k along r, as a directional domain's k runs along d).
+
+    The direction of (theta, phi) is ``sin(theta) cos(phi) e1 + sin(theta) sin(phi) e2 +
+    cos(theta) e3`` with frame rows e1, e2, e3. Cell (k, i, j) spans r in r0 + [k, k + 1] dr,
+    theta in theta0 + [i, i + 1] dtheta, phi in phi0 + [j, j + 1] dphi; its centre is at the
+    middle of each range.
+
+    Two layouts:
+      * ``full`` (light inside the medium's box or close to it): the whole sphere, theta in
+        [0, pi], phi in [0, 2 pi) periodic; n_phi is even so that a step across a pole lands in
+        the cell opposite (phi + pi), and light sent back through the inner sphere comes out
+        of the antipodal cell.
+      * otherwise, a cone about the axis e1 (from the light to the box's centre) that holds the
+        box: latitude and longitude both in [-alpha, alpha] about e1 (theta = pi/2 - latitude),
+        so no pole is inside it; its lateral faces are open.
+
+    Attributes:
+        centre: float64 (3,), the light's position.
+        frame: float64 (3, 3), rows e1, e2, e3 (orthonormal, right-handed).
+        r0, dr, theta0, dtheta, phi0, dphi: floats (world units and radians).
+        shape: (n_r, n_theta, n_phi).
+        full: the whole sphere (see above).
+    """
+
+    centre: np.ndarray
+    frame: np.ndarray
+    r0: float
+    dr: float
+    theta0: float
+    dtheta: float
+    phi0: float
+    dphi: float
+    shape: tuple[int, int, int]
+    full: bool
+
+    @property
+    def n_cells(self) -> int:
+        return int(np.prod(self.shape))
+
+    @property
+    def radii(self) -> np.ndarray:
+        """float64 (n_r,): the radius of each shell's cell centres."""
+        return self.r0 + (np.arange(self.shape[0]) + 0.5) * self.dr
+
+    @property
+    def thetas(self) -> np.ndarray:
+        return self.theta0 + (np.arange(self.shape[1]) + 0.5) * self.dtheta
+
+    @property
+    def solid_angles(self) -> np.ndarray:
+        """float64 (n_theta,): the exact solid angle of a cell of each row,
+        (cos theta_lo - cos theta_hi) dphi; they sum to 4 pi over a full sphere."""
+        edges = self.theta0 + np.arange(self.shape[1] + 1) * self.dtheta
+        return (np.cos(edges[:-1]) - np.cos(edges[1:])) * self.dphi
+
+    @property
+    def params(self) -> np.ndarray:
+        """float64 (6,): r0, dr, theta0, dtheta, phi0, dphi (what the kernels take)."""
+        return np.array([self.r0, self.dr, self.theta0, self.dtheta, self.phi0, self.dphi])
+
+    def index_to_world(self, q: np.ndarray) -> np.ndarray:
+        """World position of continuous cell index q (..., 3) (centres at integers)."""
+        q = np.asarray(q, np.float64)
+        r = self.r0 + (q[..., 0] + 0.5) * self.dr
+        t = self.theta0 + (q[..., 1] + 0.5) * self.dtheta
+        p = self.phi0 + (q[..., 2] + 0.5) * self.dphi
+        local = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+        return self.centre + r[..., None] * (local @ self.frame)
+
+    @property
+    def cell_size(self) -> float:
+        return self.dr
+
+    def transfer_lengths(self):
+        """Lengths of a step along r, theta and phi from each cell's centre, broadcastable to
+        the domain's shape: dr, r dtheta, r sin(theta) dphi."""
+        r = self.radii[:, None, None]
+        sin_t = np.sin(self.thetas)[None, :, None]
+        return np.full((1, 1, 1), self.dr), r * self.dtheta, r * sin_t * self.dphi
+
+    def inverse_area(self) -> np.ndarray:
+        """float32 (n_r, n_theta): 1 / (r^2 Omega), the fluence per unit power of a visit."""
+        return (1.0 / (self.radii[:, None] ** 2 * self.solid_angles[None, :])).astype(np.float32)
+
+    def resample(self, medium, channel: int = 0):
+        """sigma_t, sigma_s, g of colour ``channel`` at the cells' centres, float32
+        (n_r, n_theta, n_phi) each (per-voxel albedo and g clamped to the edge outside the grid)."""
+        def grid(values, clamp):
+            out = np.empty(self.shape, np.float32)
+            KS.resample_spherical(values, 1.0 / medium.voxel_size, medium.origin, self.centre,
+                                  self.frame, self.params, self.shape, clamp, out)
+            return out
+        return optics(medium, grid, self.shape, channel)
+
+    def walk(self, optics, method, progress=None) -> WalkResult:
+        """Walk unit intensity from the light out through the shells (always by sweeps).
+        Budget in W per unit intensity [W/sr]: the light emits 4 pi (full sphere) or the
+        domain's solid angle. ``direct`` holds the unscattered fluence, ``handed`` (with the
+        diffusion stage) the handed-over power and moment."""
+        sigma_t, sigma_s, g = optics
+        shape = self.shape
+        s_r, s_t, s_p = self.transfer_lengths()
+        Tr, Dr = medium_factors(sigma_t, sigma_s, g, s_r, method.decay)
+        Tt, Dt = medium_factors(sigma_t, sigma_s, g, s_t, method.decay)
+        Tp, Dp = medium_factors(sigma_t, sigma_s, g, s_p, method.decay)
+        omega = np.broadcast_to(self.solid_angles[:, None], shape[1:])
+        budget = Budget(injected=float(omega.sum(dtype=np.float64)))
+        # pending power at the centres of shell 0: it has crossed half a cell (Tr[0])
+        R = np.zeros(shape, np.float32)
+        R[0] = omega * Tr[0]
+        Ra = R * np.float32(1.0)          # a0 = 1: the light leaves radially
+        Ra[0] *= Dr[0]
+        budget.absorbed = float(np.sum(omega * (1.0 - Tr[0]), dtype=np.float64))
+        phi = np.zeros(shape, np.float32)
+        phia = np.zeros(shape, np.float32)
+        handover = None
+        if method.isotropic == "diffusion":
+            # the threshold of the mean of the radial and the two lateral step lengths
+            handover = (method.handover_scale, handover_factor(sigma_t, sigma_s, g, (s_r + s_t + s_p) / 3.0))
+        eps, diffusive, Q = handover_arrays(handover, shape)
+        bands = KP.band_edges(shape[1])
+        halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
+        anti = np.zeros((2,) + shape[1:], np.float32)
+        tally_b = np.zeros((len(bands) - 1, 5))
+        tally = np.zeros(4)
+        table = split_table32()
+        moment = method.rule == "moment"
+        inv_area = self.inverse_area()
+
+        def one_sweep(it, w_min):
+            with numba.parallel_chunksize(1):     # bands to threads one at a time
+                left = KS.sweep(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, self.full, it % 2 == 0,
+                                it % 4 >= 2, np.float32(w_min), inv_area, phi, phia, bands, halo, anti,
+                                tally_b, eps, diffusive, Q)
+            tally[:] += tally_b[:, :4].sum(axis=0)
+            return left, tally_b[:, 4].sum()
+
+        t0 = time.perf_counter()
+        target = method.tolerance * budget.injected
+        cap = method.max_iterations or default_max_iterations(shape, "sweep")
+        in_flight, it = sweep_until_converged(one_sweep, budget.injected, target, cap, R.size,
+                                              budget.injected, progress)
+        budget.reflected, budget.transmitted, budget.side = (float(x) for x in tally[:3])
+        budget.absorbed += float(tally[KP.ABSORBED])
+        budget.in_flight = in_flight
+        # the unscattered light, r^2 phi_dir = exp(-tau) per unit intensity (tau along the ray
+        # from the light, which crosses the shells along k: the same sum as a sun's along its axis)
+        direct = (direct_fluence(sigma_t, self.dr) / (self.radii ** 2)[:, None, None]).astype(np.float32)
+        return WalkResult(phi, phia, budget, it, it * R.size, in_flight / budget.injected,
+                          in_flight <= target, time.perf_counter() - t0, direct=direct,
+                          handed=Q if handover is not None else None)
+
+    def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
+        """The handed-over power on a world-aligned rectilinear grid over the medium
+        (``method.diffusion_resolution`` cells along its longest side, at most ``resolution``):
+        each spherical cell's power goes to the grid cell holding its centre. Its first moment is
+        left out: packets hand over at |a| below the cell's threshold, so it is at most that
+        times the power (a bias in cells thick on the transport scale). What the grid has no
+        diffusion cell for nearby is ``lost``."""
+        cells = min(method.resolution, method.diffusion_resolution or method.resolution)
+        grid = directional_domain(medium, np.array([0.0, 0.0, 1.0]), cells)
+        grid_optics = resample_medium(medium, grid, channel)
+        _, _, region = coefficients(*grid_optics, grid.h)
+        source = np.zeros(grid.shape, np.float32)
+        lost = KS.splat_to_grid(walk.handed[0], self.centre, self.frame, self.params, grid.origin,
+                                grid.h, grid.frame, region, source)
+        # the grid's faces are not the domain's: all that leaves them is transmitted
+        return HandOver(grid, source, np.zeros_like(source), grid_optics, 1,
+                        ("transmitted",) * 3, lost)
+
+    def world_fields(self, walk, medium, needed, outs) -> None:
+        """Nothing: the renderer looks the walk's fields up in this domain (render_block)."""
+
+    def render_block(self, walk) -> np.ndarray:
+        """float32 (3, n_cells): r^2 phi, r^2 phia and r^2 phi_dir, C-ordered (n_r, n_theta,
+        n_phi): smooth where phi has the light's 1/r^2 spike (in vacuum r^2 phi = I), so the
+        renderer's trilinear lookup per sample stays exact near the light."""
+        r2 = (self.radii ** 2)[:, None, None]
+        return np.stack([(walk.phi * r2).ravel(), (walk.phia * r2).ravel(),
+                         (walk.direct * r2).ravel()]).astype(np.float32)
+
+
+#: A cone wider than this (half-angle) becomes a full sphere: its corners would be too distorted.
+MAX_CONE_HALF_ANGLE = np.radians(60.0)
+#: Point lights farther than this many medium diagonals are refused (use a sun): the float32
+#: fields could not hold r^2 phi and 1 / r^2 much beyond it.
+MAX_POINT_DISTANCE = 1e6
+
+
+def check_point_distance(medium: Medium, position: np.ndarray, field: str) -> None:
+    """Refuse a point light farther than MAX_POINT_DISTANCE medium diagonals from the medium."""
+    p = np.asarray(position, np.float64)
+    lo, hi = medium.bounds
+    diagonal = float(np.linalg.norm(hi - lo))
+    gap = np.abs(p - np.clip(p, lo, hi)).max()         # before any square can overflow
+    if not gap <= MAX_POINT_DISTANCE * diagonal:
+        raise PopvolError(f"{field}: a point light at {p.tolist()} is {gap:.3g} units from the "
+                          f"medium, more than {MAX_POINT_DISTANCE:g} times its size ({diagonal:.3g}); "
+                          "its light arrives as parallel as a sun's: use a directional light")
+
+
+def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> SphericalDomain:
+    """The domain of a point light at ``position``: shells from the medium's box's nearest to
+    its farthest point, ``resolution`` cells along the longest of the radial extent and the
+    angular extents at the middle radius (for a full sphere, the half circumference), cells
+    of about equal size in the three directions at the middle radius."""
+    p = np.asarray(position, np.float64)
+    lo, hi = medium.bounds
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    check_point_distance(medium, p, medium.source)
+    rel = corners - p
+    r_hi = float(np.linalg.norm(rel, axis=1).max())
+    r_lo = float(np.linalg.norm(p - np.clip(p, lo, hi)))
+    axis = (lo + hi) / 2 - p
+    alpha = np.pi
+    if r_lo > 0:
+        axis = axis / np.linalg.norm(axis)
+        # the angle of each corner from the axis; arctan2 keeps small angles accurate
+        sines = np.linalg.norm(np.cross(rel, axis), axis=1)
+        alpha = float(np.arctan2(sines, rel @ axis).max()) * (1 + 1e-6)
+    r_m = 0.5 * (r_lo + r_hi)
+    if alpha > MAX_CONE_HALF_ANGLE:
+        # poles along world y; e1 x e2 = e3
+        frame = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+        h = max(r_hi - r_lo, np.pi * r_m) / resolution
+        n_t = max(2, int(np.ceil(np.pi * r_m / h - 1e-9)))
+        shape = (max(1, int(np.ceil((r_hi - r_lo) / h - 1e-9))), n_t, 2 * n_t)
+        dom = SphericalDomain(p, frame, r_lo, (r_hi - r_lo) / shape[0], 0.0, np.pi / n_t, 0.0,
+                              np.pi / n_t, shape, True)
+    else:
+        frame = light_frame(axis)
+        width = 2 * alpha * r_m
+        h = max(r_hi - r_lo, width) / resolution
+        n_a = max(1, int(np.ceil(width / h - 1e-9)))
+        shape = (max(1, int(np.ceil((r_hi - r_lo) / h - 1e-9))), n_a, n_a)
+        dom = SphericalDomain(p, frame, r_lo, (r_hi - r_lo) / shape[0], np.pi / 2 - alpha,
+                              2 * alpha / n_a, -alpha, 2 * alpha / n_a, shape, False)
+    check_memory(dom.n_cells * BYTES_PER_SPHERICAL_CELL, f"{medium.source}: method.resolution = {resolution}",
+                 f"a point light's domain of {shape[0]}x{shape[1]}x{shape[2]} cells")
+    return dom
+
+
+#: Working-set bytes per spherical cell (float32): R, Ra, phi, phia, six direction-dependent
+#: factors, sigma_t, sigma_s and g while the factors are made, the hand-over's Q (2) and flags.
+BYTES_PER_SPHERICAL_CELL = 4 * 16

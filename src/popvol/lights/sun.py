@@ -1,0 +1,137 @@
+"""A directional light (a sun) and its domain: a rectilinear grid whose first axis is the
+direction the light travels (docs/METHOD.md, "Walk").
+
+The light is described by the direction its light *travels* (Mitsuba's convention: a sun high
+in the sky has direction close to (0, -1, 0)) and its irradiance E [W/m^2 per RGB channel] on a
+plane perpendicular to that direction. Its domain is walked once for unit irradiance.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from .. import check
+from ..domains import DirectionalDomain, directional_domain, resample_medium
+from ..errors import PopvolError
+from ..kernels.sampling import domain_to_world
+from ..walk import direct_fluence, handover_factor, medium_factors, walk_box
+from .base import HandOver, Light
+
+
+@dataclass
+class DirectionalLight(Light):
+    """Collimated light from infinitely far away.
+
+    Attributes:
+        direction: float64 (3,), unit vector, the direction the light travels.
+        irradiance: float64 (3,), RGB irradiance, >= 0.
+        a0: anisotropy of the injected lobe about ``direction`` (1 = perfectly collimated).
+        from_environment: one of the K lights an environment map was decomposed into (the
+            reference export lights the scene with the map itself instead).
+    """
+
+    type: ClassVar[str] = "directional"
+    keys: ClassVar[frozenset] = frozenset({"type", "direction", "irradiance", "a0"})
+
+    direction: np.ndarray
+    irradiance: np.ndarray
+    a0: float = 1.0
+    source: str = "<light>"
+    from_environment: bool = False
+
+    def __post_init__(self):
+        d = check.vector(self.direction, "direction", self.source, nonzero=True)
+        norm = np.linalg.norm(d)
+        if not np.isfinite(norm):
+            d = d / np.abs(d).max()
+            norm = np.linalg.norm(d)
+        self.direction = d / norm
+        self.irradiance = check.rgb(self.irradiance, "irradiance", self.source)
+        self.a0 = check.number(self.a0, "a0", self.source, 0.0, 1.0)
+
+    @classmethod
+    def from_table(cls, t: dict, name: str, src: str) -> "DirectionalLight":
+        if "direction" not in t:
+            raise PopvolError(f"{src}: {name}.direction is required (the direction the light travels)")
+        return cls(check.vector(t["direction"], f"{name}.direction", src, nonzero=True),
+                   check.rgb(t.get("irradiance", 1.0), f"{name}.irradiance", src),
+                   check.number(t.get("a0", 1.0), f"{name}.a0", src, 0.0, 1.0), source=f"{src}: {name}")
+
+    @property
+    def power(self) -> np.ndarray:
+        return self.irradiance
+
+    @property
+    def render_direction(self) -> np.ndarray:
+        return self.direction
+
+    def key(self) -> tuple:
+        # rounded: normalising an already unit direction again may change its last bit
+        return ("directional", tuple(np.round(self.direction, 12)), self.a0, self.from_environment)
+
+    def domain(self, medium, method) -> "SunDomain":
+        resolution = method.resolution
+        if self.from_environment and method.environment_resolution:
+            resolution = method.environment_resolution
+        grid = directional_domain(medium, self.direction, resolution)
+        return SunDomain(grid.frame, grid.origin, grid.h, grid.shape, self.a0)
+
+    def table(self) -> dict:
+        return {"type": self.type, "direction": [float(x) for x in self.direction],
+                "irradiance": [float(x) for x in self.irradiance], "a0": float(self.a0)}
+
+    def scaled(self, factor: float) -> "DirectionalLight":
+        return DirectionalLight(self.direction, self.irradiance * factor, self.a0, self.source,
+                                self.from_environment)
+
+    def mitsuba(self) -> dict:
+        return {"type": "directional", "direction": self.direction.tolist(),
+                "irradiance": {"type": "rgb", "value": self.irradiance.tolist()}}
+
+    def digest(self) -> bytes:
+        return np.concatenate([self.direction, self.irradiance]).astype(np.float64).tobytes()
+
+
+def diffusion_factor(shape, method) -> int:
+    """Domain cells per diffusion cell along each axis: the diffusion grid has about
+    method.diffusion_resolution cells along the domain's longest side (0: the domain's own)."""
+    if not method.diffusion_resolution:
+        return 1
+    return max(1, round(max(shape) / method.diffusion_resolution))
+
+
+@dataclass
+class SunDomain(DirectionalDomain):
+    """A sun's domain: a light-aligned DirectionalDomain and the anisotropy a0 of the light
+    injected through its face k = 0."""
+
+    a0: float = 1.0
+
+    def resample(self, medium, channel: int = 0):
+        return resample_medium(medium, self, channel)
+
+    def walk(self, optics, method, progress=None):
+        """Walk unit irradiance from the face k = 0 (E h^2 per cell of slice 0)."""
+        sigma_t, sigma_s, g = optics
+        Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
+        handover = None
+        if method.isotropic == "diffusion":
+            handover = (method.handover_scale, handover_factor(sigma_t, sigma_s, g, self.h))
+        injection = np.full(self.shape[1:], self.h * self.h, np.float32)
+        result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
+                          method.tolerance, method.max_iterations, progress=progress, handover=handover)
+        # a collimated sun's unscattered light, lit with its own lobe by the renderer
+        result.direct = direct_fluence(sigma_t, self.h) if self.a0 == 1.0 else None
+        return result
+
+    def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
+        """The diffusion grid is the domain itself, in blocks of diffusion_factor^3 cells."""
+        return HandOver(self, walk.handed[0], walk.handed[1], optics,
+                        diffusion_factor(self.shape, method))
+
+    def world_fields(self, walk, medium, needed, outs) -> None:
+        fields = (walk.phi, walk.phia) + (() if walk.direct is None else (walk.direct,))
+        domain_to_world(fields, self.frame, self.origin, self.h, medium.origin, medium.voxel_size,
+                        outs[:len(fields)], needed)

@@ -1,0 +1,173 @@
+"""Solving a scene: every light, the same steps (docs/METHOD.md):
+
+    light domain -> resample the medium -> walk -> hand-over -> diffusion -> world fields
+
+Each light kind supplies its domain (popvol.lights); this module runs the steps, books the
+energy budget the same way for every kind, and gathers the fields the renderer reads.
+
+Grey media are linear in the light's power (the anisotropy merge is energy-weighted, so it is
+independent of scale): each domain is solved once for unit irradiance (or intensity) and the
+renderer scales it by the light's RGB power. A chromatic medium is solved once per channel.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from .diffusion import solve_diffusion
+from .domains import check_memory
+from .errors import PopvolError
+from .kernels.sampling import domain_to_world
+from .results import DomainSolution, PointFields, Solution
+
+
+def check_decay(medium, method) -> None:
+    """decay = 'paper' raises g to a power: it needs g >= 0 everywhere."""
+    if method.decay == "paper" and medium.g_min < 0:
+        raise PopvolError(f"{medium.source}: experimental.decay = 'paper' (g^(sigma_s s), supplement "
+                          f"Eq. 12) needs g >= 0, got g = {medium.g_min:g}; use decay = 'poisson'")
+
+
+def solve_light(medium, light, method, progress=None, channel: int = 0) -> DomainSolution:
+    """Build the light's domain, resample the medium (colour ``channel``) into it, walk unit
+    power and, with the diffusion stage, diffuse what was handed over."""
+    check_decay(medium, method)
+    t0 = time.perf_counter()
+    domain = light.domain(medium, method)
+    optics = domain.resample(medium, channel)
+    t1 = time.perf_counter()
+    walk = domain.walk(optics, method, progress)
+    ds = DomainSolution(light, domain, walk, t1 - t0, channel)
+    if method.isotropic == "diffusion":
+        t2 = time.perf_counter()
+        hand = domain.hand_over(walk, optics, medium, method, channel)
+        d = solve_diffusion(hand.Q0, hand.Q1, *hand.optics, hand.grid.h, rtol=0.1 * method.tolerance,
+                            factor=hand.factor)
+        walk.budget.add_diffusion(d, hand.faces, hand.lost)
+        walk.diffusion, walk.handed = d, None
+        ds.diffusion_grid = hand.grid
+        walk.seconds_diffusion = time.perf_counter() - t2
+    return ds
+
+
+def voxels_seen(density: np.ndarray) -> np.ndarray:
+    """bool (nx, ny, nz): the voxels the renderer can read fields from. It reads them only where
+    the density is > 0, by trilinear interpolation, so the voxels within one voxel (26
+    neighbours) of a non-empty one; fields elsewhere are left 0."""
+    m = density > 0
+    for axis in range(3):                  # separable 3x3x3 dilation
+        d = m.copy()
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        d[tuple(lo)] |= m[tuple(hi)]
+        d[tuple(hi)] |= m[tuple(lo)]
+        m = d
+    return m
+
+
+def medium_key(medium) -> tuple:
+    """What propagation depends on in a medium: grids by identity (a Medium made from another
+    with ``dataclasses.replace`` shares them), numbers by value."""
+    def value(v):
+        return ("grid", id(v)) if np.ndim(v) == 3 else tuple(np.atleast_1d(v).tolist())
+    return (id(medium.density), medium.density.shape, tuple(medium.origin), tuple(medium.voxel_size),
+            value(medium.scale), value(medium.albedo), value(medium.g))
+
+
+#: Method fields that only rendering reads: changing them keeps a solution valid.
+RENDER_ONLY = ("step", "spp", "exposure", "seed")
+
+
+def method_key(method) -> tuple:
+    return tuple((k, v) for k, v in vars(method).items() if k not in RENDER_ONLY)
+
+
+def point_fields(domains: list[DomainSolution], n_lights: int, n_channels: int) -> PointFields:
+    """Gather the blocks of the lights whose fields the renderer reads in their own domains."""
+    pts = PointFields.empty(n_lights, n_channels)
+    blocks, total = [], 0
+    for ds in domains:
+        if not ds.light.fields_in_domain:
+            continue
+        i, dom = ds.light_index, ds.domain
+        blocks.append(dom.render_block(ds.result))
+        pts.offset[i, ds.channel] = total
+        total += dom.n_cells
+        pts.shape[i], pts.params[i], pts.frame[i], pts.full[i] = dom.shape, dom.params, dom.frame, dom.full
+    if blocks:
+        pts.fields = np.ascontiguousarray(np.concatenate(blocks, axis=1))
+    return pts
+
+
+def solve(scene, progress=None, reuse: Solution | None = None) -> Solution:
+    """Propagate every light of ``scene`` (and every colour channel of a chromatic medium);
+    returns the fields the renderer needs.
+
+    ``reuse``: an earlier solution. Lights that it solved for the same medium and method
+    (their power may differ: fields are per unit power) are copied from it instead of
+    propagated again, so moving one light of several re-propagates that light only, and
+    changing a light's power or the camera re-propagates nothing. Grids are compared by
+    identity: a medium whose arrays were changed in place must not be solved with ``reuse``.
+    ``progress``: optional callable(light index, iteration, residual).
+    """
+    med = scene.medium
+    n = len(scene.lights)
+    n_ch = med.n_channels
+    check_memory(3 * n * n_ch * med.density.size * 4, f"{med.source}: medium", f"fields of {n} "
+                 f"light(s) x {n_ch} channel(s) on a {'x'.join(map(str, med.shape))} grid")
+    # zeros: the fields are written only where the renderer reads them (voxels_seen); calloc'd
+    # pages that are never written cost nothing
+    phi = np.zeros((n, n_ch) + med.shape, np.float32)
+    phia = np.zeros_like(phi)
+    direct = np.zeros_like(phi)
+    diffusion = scene.method.isotropic == "diffusion"
+    n_diffuse = n if diffusion else 0
+    if diffusion:
+        check_memory(4 * n * n_ch * med.density.size * 4, f"{med.source}: medium",
+                     f"diffusion fields of {n} light(s) x {n_ch} channel(s)")
+    phid = np.zeros((n_diffuse, n_ch) + (med.shape if diffusion else (1, 1, 1)), np.float32)
+    flux = np.zeros((n_diffuse, n_ch, 3) + (med.shape if diffusion else (1, 1, 1)), np.float32)
+    key = (medium_key(med), method_key(scene.method))
+    old = {}
+    if reuse is not None and reuse.key == key:
+        old = {(ds.light.key(), ds.channel): ds for ds in reuse.domains}
+    needed = voxels_seen(med.density)
+    sols = []
+    seconds = dict.fromkeys(("resample", "propagate", "diffusion", "fields"), 0.0)
+    for i, light in enumerate(scene.lights):
+        for ch in range(n_ch):
+            prev = old.get((light.key(), ch))
+            if prev is not None:
+                j = prev.light_index
+                phi[i, ch], phia[i, ch], direct[i, ch] = reuse.phi[j, ch], reuse.phia[j, ch], reuse.direct[j, ch]
+                if diffusion:
+                    phid[i, ch], flux[i, ch] = reuse.phid[j, ch], reuse.flux[j, ch]
+                sols.append(dataclasses.replace(prev, light=light, light_index=i, reused=True))
+                continue
+            cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
+            ds = solve_light(med, light, scene.method, cb, ch)
+            ds.light_index = i
+            t0 = time.perf_counter()
+            ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
+            if diffusion:
+                d, grid = ds.result.diffusion, ds.diffusion_grid
+                # world component c of J = sum over the grid axes a of frame[a, c] J_a
+                J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
+                domain_to_world((d.phi, J[0], J[1], J[2]), grid.frame, grid.origin, d.h, med.origin,
+                                med.voxel_size, (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1], flux[i, ch, 2]),
+                                needed)
+            seconds["fields"] += time.perf_counter() - t0
+            seconds["resample"] += ds.seconds_resample
+            seconds["propagate"] += ds.result.seconds
+            seconds["diffusion"] += ds.result.seconds_diffusion
+            sols.append(ds)
+    lights = scene.lights
+    return Solution(medium=med, domains=sols, phi=phi, phia=phia, direct=direct,
+                    directions=np.array([l.render_direction for l in lights], np.float64).reshape(-1, 3),
+                    positions=np.array([l.render_position for l in lights], np.float64).reshape(-1, 3),
+                    is_point=np.array([l.fields_in_domain for l in lights], np.bool_),
+                    irradiance=np.array([l.power for l in lights], np.float64).reshape(-1, 3),
+                    points=point_fields(sols, n, n_ch), phid=phid, flux=flux, seconds=seconds, key=key)

@@ -1,0 +1,179 @@
+"""What solving produces: a domain's walk, its energy budget, and the scene's fields for the
+renderer (docs/METHOD.md, "Energy balance" and "Rendering")."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Budget fields, in the order the kernels' tallies use for the first three.
+BUDGET_FIELDS = ("injected", "reflected", "transmitted", "side", "diffusion_leak", "absorbed", "in_flight")
+
+
+@dataclass
+class Budget:
+    """Energy budget of one domain [W, per unit irradiance or intensity] (docs/METHOD.md,
+    "Energy balance"): injected = escaped + absorbed + in flight, up to float rounding."""
+
+    injected: float = 0.0
+    reflected: float = 0.0     # left through the face toward the light (a cone's inner sphere)
+    transmitted: float = 0.0   # left through the far face (the outer sphere)
+    side: float = 0.0          # left through the lateral faces
+    absorbed: float = 0.0
+    in_flight: float = 0.0     # still pending when the walk stopped
+    diffusion_leak: float = 0.0  # handed-over light the diffusion grid could not hold or keep
+
+    @property
+    def escaped(self) -> float:
+        return self.reflected + self.transmitted + self.side + self.diffusion_leak
+
+    @property
+    def balance_error(self) -> float:
+        """(injected - escaped - absorbed - in flight) / injected: 0 up to float rounding."""
+        return (self.injected - self.escaped - self.absorbed - self.in_flight) / max(self.injected, 1e-300)
+
+    def add_diffusion(self, diffusion, faces=("reflected", "transmitted", "side"), lost: float = 0.0) -> None:
+        """Book the diffusion stage: what it absorbed, what left its grid's faces (toward the
+        light, far, lateral: added to the budget fields named by ``faces``), and what leaked
+        into empty cells or was ``lost`` before it (diffusion_leak)."""
+        self.absorbed += diffusion.absorbed
+        for name, watts in zip(faces, diffusion.leaked[:3]):
+            setattr(self, name, getattr(self, name) + watts)
+        self.diffusion_leak += diffusion.leaked[3] + lost
+
+    def as_dict(self) -> dict:
+        d = {k: float(getattr(self, k)) for k in BUDGET_FIELDS}
+        d["escaped"] = self.escaped
+        d["balance_error"] = self.balance_error
+        return d
+
+
+@dataclass
+class WalkResult:
+    """A domain's walk: accumulated fields and how the solver got there.
+
+    phi, phia: float32 (domain shape): fluence [W/m^2 per unit irradiance or intensity] and
+    fluence times the lobe's anisotropy (A = phia / phi). direct: float32 (domain shape), the
+    part of phi that is unscattered light (None for lights without one). handed: float32
+    (2, domain shape), power and first moment handed over to the diffusion stage [W] (None
+    without it). diffusion: the diffusion.DiffusionResult once the pipeline has solved it.
+    """
+
+    phi: np.ndarray
+    phia: np.ndarray
+    budget: Budget
+    iterations: int            # Jacobi iterations or sweeps
+    cell_updates: int          # cells visited by the solver (for throughput figures)
+    residual: float            # in-flight energy / injected energy when it stopped
+    converged: bool
+    seconds: float = 0.0
+    solver: str = "sweep"
+    direct: np.ndarray | None = None
+    handed: np.ndarray | None = None
+    diffusion: object = None
+    seconds_diffusion: float = 0.0
+
+
+@dataclass
+class DomainSolution:
+    """One light (and colour channel) solved in its domain."""
+
+    light: object              # a lights.Light
+    domain: object             # its LightDomain
+    result: WalkResult
+    seconds_resample: float
+    channel: int = 0           # colour channel of a chromatic medium (0 for grey media)
+    light_index: int = 0       # which of the scene's lights
+    reused: bool = False       # copied from an earlier solution (pipeline.solve's ``reuse``)
+    diffusion_grid: object = None   # domains.DirectionalDomain of the diffusion stage
+
+    @property
+    def direct(self) -> np.ndarray | None:
+        return self.result.direct
+
+    def stats(self) -> dict:
+        r = self.result
+        return {"light": self.light_index, "channel": self.channel, "reused": self.reused,
+                "type": self.light.type, "shape": list(self.domain.shape),
+                "cell_size": self.domain.cell_size, "solver": r.solver, "iterations": r.iterations,
+                "residual": r.residual, "converged": r.converged, "cell_updates": r.cell_updates,
+                "seconds_resample": self.seconds_resample, "seconds_propagate": r.seconds,
+                "seconds_diffusion": r.seconds_diffusion,
+                "diffusion_iterations": r.diffusion.iterations if r.diffusion else 0,
+                "budget_per_unit_irradiance": r.budget.as_dict()}
+
+
+@dataclass
+class PointFields:
+    """The walk's fields of the lights whose fields stay in their own spherical domains, for
+    the renderer, which looks them up per sample: r^2 phi, r^2 phia and r^2 phi_dir (smooth
+    where phi has the light's 1/r^2 spike; the renderer divides by each sample's own r^2).
+
+    fields: float32 (3, total): the three fields of every domain (light, channel), each block
+        C-ordered (n_r, n_theta, n_phi);
+    offset: int64 (n_lights, n_channels): start of each block (-1 for other lights);
+    shape: int64 (n_lights, 3); params: float64 (n_lights, 6) (r0, dr, theta0, dtheta, phi0,
+    dphi); frame: float64 (n_lights, 3, 3); full: bool (n_lights,) (see lights.point).
+    """
+
+    fields: np.ndarray
+    offset: np.ndarray
+    shape: np.ndarray
+    params: np.ndarray
+    frame: np.ndarray
+    full: np.ndarray
+
+    @staticmethod
+    def empty(n_lights: int, n_channels: int) -> "PointFields":
+        return PointFields(np.zeros((3, 1), np.float32), -np.ones((n_lights, n_channels), np.int64),
+                           np.ones((n_lights, 3), np.int64), np.ones((n_lights, 6)),
+                           np.tile(np.eye(3), (n_lights, 1, 1)), np.zeros(n_lights, np.bool_))
+
+
+def _empty(*shape):
+    return np.zeros(shape, np.float32)
+
+
+@dataclass
+class Solution:
+    """Everything rendering needs: per-light fields, per unit irradiance (suns) or intensity
+    (point lights); the renderer multiplies by each light's RGB power.
+
+    phi, phia, direct: float32 (n_lights, n_channels, nx, ny, nz) on the medium's world grid
+    (grey media: n_channels = 1): the walk's fluence, fluence times anisotropy along the
+    light's direction, and its unscattered part. Zero for lights whose fields stay in their
+    own domain (``points``; is_point). phid: float32 (n_lights, n_channels, nx, ny, nz), the
+    diffuse light's fluence, and flux: float32 (n_lights, n_channels, 3, nx, ny, nz), its
+    world-space flux vector J (arrays with n_lights = 0 without the diffusion stage).
+    All fields are 0 at voxels the renderer never reads (pipeline.voxels_seen).
+    """
+
+    medium: object
+    domains: list[DomainSolution]
+    phi: np.ndarray
+    phia: np.ndarray
+    direct: np.ndarray
+    directions: np.ndarray     # float64 (n_lights, 3): direction each sun's light travels
+    positions: np.ndarray      # float64 (n_lights, 3): each point light's position
+    is_point: np.ndarray       # bool (n_lights,): fields in ``points``, not on the world grid
+    irradiance: np.ndarray     # float64 (n_lights, 3): each light's power (irradiance, intensity)
+    points: PointFields
+    phid: np.ndarray = field(default_factory=lambda: _empty(0, 1, 1, 1, 1))
+    flux: np.ndarray = field(default_factory=lambda: _empty(0, 1, 3, 1, 1, 1))
+    seconds: dict = field(default_factory=dict)
+    key: tuple = ()            # what it was solved for (pipeline.solve's reuse)
+
+    def relit(self, lights) -> "Solution":
+        """The same fields under ``lights`` of other powers (fields are per unit power)."""
+        power = np.array([l.power for l in lights], np.float64).reshape(-1, 3)
+        return dataclasses.replace(self, irradiance=power)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of every array the solution holds for rendering."""
+        return sum(a.nbytes for a in (self.phi, self.phia, self.direct, self.phid, self.flux,
+                                      self.points.fields))
+
+    def stats(self) -> dict:
+        return {"seconds": dict(self.seconds), "domains": [ds.stats() for ds in self.domains]}

@@ -1,0 +1,206 @@
+"""The walk: light carried cell to cell through a light's domain (docs/METHOD.md, "Walk").
+
+A domain's cells hold pending packets (power W and W times the lobe's anisotropy a). A cell
+sends each packet's front, side and back parts (supplement Eq. 2, 4, 7) to its six neighbours,
+attenuated by the half-step transmittance of sender and receiver and with the anisotropy
+decayed (supplement Eq. 12 or its Poisson form), and adds the visit to the fluence phi and phi
+a. Gauss-Seidel sweeps along the principal ordinate (kernels/propagation.py for a rectilinear
+domain, kernels/spherical.py for a point light's) or a Jacobi wavefront repeat this until the
+power still in flight is below the tolerance. With the diffusion stage, packets whose lobe has
+spread leave the walk (docs/METHOD.md, "Hand-over").
+"""
+from __future__ import annotations
+
+import functools
+import time
+
+import numba
+import numpy as np
+
+from . import hg
+from .kernels import propagation as K
+from .results import Budget, WalkResult
+
+SPLIT_TABLE_SIZE = 4097
+SOUTHWELL_FRACTION = 2.0      # cells send above twice the mean pending energy (sweep_until_converged)
+
+
+@functools.lru_cache(maxsize=4)
+def split_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
+    """float64 (n, 8): front/side/back shares and their conditional mean cosines for a lobe
+    HG_a, sampled at a = linspace(-1, 1, n) (supplement Eq. 2, 4, 7); columns 6, 7 are padding
+    so that one row is 64 bytes (the kernels read two neighbouring rows per lookup)."""
+    a = np.linspace(-1.0, 1.0, n)
+    table = np.zeros((n, 8))
+    table[:, 0], table[:, 1], table[:, 2] = hg.split_fractions(a)
+    table[:, 3], table[:, 4], table[:, 5] = hg.conditional_mean_cosines(a)
+    return table
+
+
+@functools.lru_cache(maxsize=4)
+def split_table32(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
+    """:func:`split_table` in float32, what the kernels read (see kernels.propagation.split)."""
+    return split_table(n).astype(np.float32)
+
+
+def medium_factors(sigma_t: np.ndarray, sigma_s: np.ndarray, g: np.ndarray, h, decay: str
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Half-step transmittance Th and anisotropy decay Dh per cell, float32 (the broadcast
+    shape of the arguments; h is a step length, a number or an array).
+
+    Th = exp(-sigma_a h / 2)  (only absorption removes energy; scattering widens the lobe).
+    Dh = g^(sigma_s h / 2)    (decay "paper", supplement Eq. 12; needs g >= 0), or
+         exp(-sigma_s h (1 - g) / 2)  (decay "poisson": E[g^n] for n ~ Poisson(sigma_s h)).
+    """
+    sigma_a = np.maximum(sigma_t - sigma_s, 0.0)
+    Th = np.exp(-0.5 * h * sigma_a)
+    x = 0.5 * h * sigma_s
+    if decay == "paper":
+        with np.errstate(divide="ignore"):
+            Dh = np.where(x > 0, np.power(np.maximum(g, 0.0), x), 1.0)
+    else:
+        Dh = np.exp(-x * (1.0 - g))
+    return Th.astype(np.float32), Dh.astype(np.float32)
+
+
+def handover_factor(sigma_t, sigma_s, g, s) -> np.ndarray:
+    """float32: per cell, f = 1 - exp(-sigma_tr s) (sigma_tr = sigma_a + sigma_s (1 - g), s the
+    cell's step length, broadcastable): the share of a lobe's first moment the medium removes
+    over one cell. A packet hands over when |a| < method.handover_scale * f, so the criterion
+    follows the transport mean free path, not the cell count (docs/METHOD.md, "Hand-over").
+    0 outside the diffusion region (sigma_s = 0 or sigma_t = 0)."""
+    sigma_a = np.maximum(sigma_t - sigma_s, 0.0)
+    sigma_tr = sigma_a + sigma_s * (1.0 - g)
+    f = -np.expm1(-sigma_tr * s)
+    return np.where((sigma_s > 0) & (sigma_t > 0), f, 0.0).astype(np.float32)
+
+
+def direct_fluence(sigma_t: np.ndarray, h: float) -> np.ndarray:
+    """float32 (n_d, n_u, n_v): fluence of the unscattered light at the cell centres of a
+    domain whose first axis runs from the light, per unit irradiance: exp(-tau), tau = sigma_t
+    integrated from the face k = 0 to the centre (Beer-Lambert, sigma_t piecewise constant)."""
+    tau_half = np.asarray(sigma_t, np.float64) * (0.5 * h)
+    tau = 2.0 * np.cumsum(tau_half, axis=0) - tau_half
+    return np.exp(-tau).astype(np.float32)
+
+
+def default_max_iterations(shape, solver: str) -> int:
+    if solver == "jacobi":
+        return 40 * int(sum(shape))
+    return 400
+
+
+def handover_arrays(handover, shape):
+    """(scale, per-cell factor, Q) as the kernels take them, from ``handover`` = (scale,
+    float32 per-cell :func:`handover_factor`) or None (no hand-over: scale -1, and the factor and
+    Q are dummies); Q is float32 (2,) + shape, zeroed: handed-over power and first moment."""
+    if handover is None:
+        return -1.0, np.zeros((1, 1, 1), np.float32), np.zeros((2, 1, 1, 1), np.float32)
+    scale, factor = handover
+    return float(scale), np.ascontiguousarray(factor, np.float32), np.zeros((2,) + tuple(shape), np.float32)
+
+
+def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, n_cells: int,
+                          injected: float, progress=None) -> tuple[float, int]:
+    """Run thresholded Gauss-Seidel sweeps until the power in flight is <= target or ``cap``
+    sweeps have run; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
+    number of cells that sent). Returns (in flight, sweeps).
+
+    Southwell-style: only cells holding more than twice the mean pending energy send; the
+    others wait for more to arrive, which skips most of the faint light in empty space. Near the
+    tolerance the fraction drops to 1/2 (the fullest cell always qualifies: max >= mean), and
+    should no cell qualify, the next sweep sends them all.
+    """
+    fraction = SOUTHWELL_FRACTION
+    it = 0
+    while in_flight > target and it < cap:
+        if in_flight < 10.0 * target:
+            fraction = min(fraction, 0.5)
+        in_flight, sent = one_sweep(it, fraction * in_flight / n_cells)
+        fraction = fraction if sent > 0 else 0.0
+        it += 1
+        if progress is not None:
+            progress(it, in_flight / injected)
+    return in_flight, it
+
+
+def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
+             rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
+             max_iterations: int = 0, periodic: bool = False, progress=None,
+             handover: tuple[float, np.ndarray] | None = None) -> WalkResult:
+    """Walk light injected into slice k = 0 of a rectilinear domain until (almost) all of it
+    has left.
+
+    Args:
+        Th, Dh: float32 (n_d, n_u, n_v) half-step factors from :func:`medium_factors`.
+        injection: (n_u, n_v) power [W] entering each cell of slice 0 (E h^2 for a sun).
+            The light travels half a cell to the first centre, so it is attenuated by Th[0].
+        a0: anisotropy of the injected lobe (1 = collimated).
+        h: cell size; fluence accumulates W / h^2 per visit.
+        rule: "moment" or "paper"; solver: "sweep" or "jacobi".
+        tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
+            (0 = automatic).
+        periodic: wrap the lateral faces (an infinite slab; used by the slab tests).
+        progress: optional callable(iteration, residual).
+        handover: (method.handover_scale, float32 (n_d, n_u, n_v) :func:`handover_factor`): a
+            packet whose |a| is below their product leaves the walk; its power and moment are
+            returned in ``handed``. None: light walks until it leaves.
+    """
+    Th = np.ascontiguousarray(Th, np.float32)
+    Dh = np.ascontiguousarray(Dh, np.float32)
+    shape = Th.shape
+    moment = rule == "moment"
+    table = split_table32()
+    inv_area = np.float32(1.0 / (h * h))
+    cap = max_iterations or default_max_iterations(shape, solver)
+    if handover is not None and periodic:
+        raise ValueError("the hand-over has no periodic diffusion stage")
+    eps, diffusive, Q = handover_arrays(handover, shape)
+
+    W = np.zeros(shape, np.float32)
+    phi = np.zeros(shape, np.float32)
+    phia = np.zeros(shape, np.float32)
+    budget = Budget(injected=float(np.sum(injection, dtype=np.float64)))
+    tally = np.zeros(4)
+    target = tolerance * budget.injected
+    t0 = time.perf_counter()
+    it = 0
+    if solver == "jacobi":
+        # the wave holds packets at cell centres: the injected light has crossed half a cell
+        W[0] = injection * Th[0]
+        Wa = W * np.float32(a0)
+        Wa[0] *= Dh[0]
+        budget.absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+        in_flight = float(np.sum(W, dtype=np.float64))
+        parts = np.empty((6,) + shape, np.float32)
+        while in_flight > target and it < cap:
+            K.jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, parts, tally,
+                          eps, diffusive, Q)
+            in_flight = K.jacobi_gather(parts, Th, Dh, periodic, W, Wa, tally)
+            it += 1
+            if progress is not None and it % 16 == 0:
+                progress(it, in_flight / budget.injected)
+    else:
+        # pending packets have arrived at the face of their cell; the cell applies its half step
+        W[0] = injection
+        Wa = W * np.float32(a0)
+        in_flight = budget.injected
+        bands = K.band_edges(shape[1])
+        halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
+        tally_b = np.zeros((len(bands) - 1, 5))
+
+        def one_sweep(it, w_min):
+            # alternate +d / -d every sweep and the lateral order every second sweep
+            with numba.parallel_chunksize(1):     # bands to threads one at a time
+                left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
+                               w_min, inv_area, phi, phia, bands, halo, tally_b, tally, eps, diffusive, Q)
+            return left, tally_b[:, 4].sum()
+        in_flight, it = sweep_until_converged(one_sweep, in_flight, target, cap, Th.size,
+                                              budget.injected, progress)
+    seconds = time.perf_counter() - t0
+    budget.reflected, budget.transmitted, budget.side = (float(x) for x in tally[:3])
+    budget.absorbed += float(tally[K.ABSORBED])
+    budget.in_flight = in_flight
+    residual = in_flight / max(budget.injected, 1e-300)
+    return WalkResult(phi, phia, budget, it, it * int(np.prod(shape)), residual, in_flight <= target,
+                      seconds, solver, handed=Q if handover is not None else None)
