@@ -1,6 +1,6 @@
 """Regenerate docs/ACCURACY_NOTES.md: POP's energy balance against Monte Carlo.
 
-1. Plane-parallel slabs (RECONSTRUCTION.md 7.3): transmitted / reflected fractions of every
+1. Plane-parallel slabs (tests/montecarlo.py): transmitted / reflected fractions of every
    rule x decay combination against a Monte Carlo random walk.
 2. A narrow beam in a thick cube (tau 10, albedo 0.99, g 0.8) at three grid resolutions:
    does the answer converge as the grid is refined?
@@ -60,7 +60,7 @@ def main(out=ROOT / "docs" / "ACCURACY_NOTES.md"):
               "of the fluence shrink with every refinement while Monte Carlo sends most light out of",
               "the sides. With `paper`, back- and side-scattered light is re-aimed forward and stays",
               "in the cube ever longer, so absorption grows with refinement. This is the cause of the",
-              "too-bright, resolution-dependent clouds in METHOD.md.", "",
+              "too-bright, resolution-dependent clouds in docs/METHOD.md.", "",
               "**With the isotropic stage done as diffusion** (`isotropic = \"diffusion\"`, the",
               "default; popvol/diffusion.py) light whose lobe has spread below the hand-over threshold",
               "handover_scale * (1 - exp(-sigma_tr h)) of its cell leaves the walk for a diffusion",

@@ -1,6 +1,6 @@
 """Propagation: energy conservation (supplement Sec. 1.2), Beer-Lambert, Numba vs NumPy twins,
 agreement of the two solvers, and the slab energy balance against Monte Carlo
-(RECONSTRUCTION.md 7.3)."""
+(a plane-parallel slab, tests/montecarlo.py)."""
 import numpy as np
 import pytest
 
@@ -234,7 +234,7 @@ def test_solvers_agree_at_convergence(rule, rng):
     assert rel < 0.03
 
 
-# -- slab energy balance against Monte Carlo (RECONSTRUCTION.md 7.3) ------------------------------
+# -- slab energy balance against Monte Carlo (tests/montecarlo.py) --------------------------------
 
 SLABS = [(4, 1.0, 0.8), (4, 0.9, 0.8), (8, 1.0, 0.85), (4, 1.0, 0.5), (4, 1.0, 0.0)]
 
@@ -258,14 +258,14 @@ def test_slab_moment_rule_matches_monte_carlo(tau, albedo, g):
     T, R = pop_slab(tau, albedo, g, "moment", "poisson")
     print(f"slab tau={tau} albedo={albedo} g={g}: MC T={mc['T']:.3f} R={mc['R']:.3f} | "
           f"moment+poisson T={T:.3f} R={R:.3f}")
-    # RECONSTRUCTION.md 7.3 found the moment rule within ~0.03 of Monte Carlo in all 5 cases.
+    # the moment rule is within ~0.03 of Monte Carlo in all 5 cases
     assert abs(T - mc["T"]) < 0.035
     assert abs(R - mc["R"]) < 0.035
 
 
-def test_slab_paper_rule_misses_reflection():
-    """The literal rule re-aims back-scattered light forward: with absorption almost nothing
-    is reflected (RECONSTRUCTION.md 5.3). Reported, and held as the known bias."""
+def test_slab_paper_rule_misses_reflection_known_bias_change_detector():
+    """Change detector of a known bias, against Monte Carlo: the literal rule re-aims
+    back-scattered light forward, so with absorption almost nothing is reflected."""
     from montecarlo import slab_mc
     mc = slab_mc(4, 0.9, 0.8, n_photons=100_000, seed=2)
     T, R = pop_slab(4, 0.9, 0.8, "paper", "paper")
