@@ -1,17 +1,27 @@
-"""Change detector for the default method: its error against a converged Mitsuba 3 reference of
-one small cloud, pinned at the figures popvol itself last measured.
+"""Regression guard (a change detector) for the default method: its error against a converged
+Mitsuba 3 reference of one small cloud, pinned at the figures popvol itself last measured.
 
-The expected figures are popvol's own earlier output, not an independent bound on its accuracy:
-relMSE 0.0044 and brightness x0.864 with the default method (moment + poisson + diffusion stage,
-128 cells, hand-over threshold 2 (1 - exp(-sigma_tr h)) per cell, a sun's unscattered light lit
-with its own lobe; the lit faces are still too dark, README "bias"). popvol's image is
-deterministic (seeded jitter, thread-count-independent sweep bands), so the margin, 10 % in
-relMSE (fails when worse) and +-0.05 in brightness (fails either way), only absorbs compiler and
-library rounding: a change that makes the default measurably worse, or better, must update these
-figures. The accuracy itself, scene by scene, is in docs/ACCURACY.md.
+The figures are in the metric of ``popvol compare`` (popvol.metrics): on the pixels whose camera
+ray crosses the medium, the scale-free relMSE (eps = 0.01 x the squared mean reference luminance
+there), the brightness ratio popvol / reference there, and the same ratio in three bands of the
+reference's luminance (dimmest 50 %, middle 40 %, brightest 10 % of those pixels). Measured with
+the default method (moment + poisson + diffusion stage, 128 cells): relMSE 0.0636, brightness
+x0.864, bands dim x1.032, mid x0.836, bright x0.779; the walk alone (no diffusion stage) relMSE
+0.840, brightness x1.70.
+
+These are popvol's own earlier output, not an independent bound on its accuracy. The accuracy
+GOAL is relMSE <= 0.03 and every band ratio within 5 % of 1 (GOAL_*); this scene misses it now
+(relMSE about twice the goal; the brightest 10 %, the lit faces, ~22 % too dark; README, "What
+it computes, and where it is biased"). The guard's margins are derived from the goal: relMSE
+may rise by half the goal's whole budget (RELMSE_GUARD, ~24 % of the measured figure) plus the
+reference's own noise; the overall and band ratios may move by 0.6 x the goal's 5 %
+(BAND_GUARD, 0.03) either way. popvol's image is deterministic (seeded
+jitter, thread-count-independent sweep bands), so the margins are far above rounding: a change
+that makes the default measurably worse, or a band measurably better, must update MEASURED_*.
+The accuracy itself, scene by scene, is in docs/ACCURACY.md.
 
 tests/fixtures/regression_cloud.exr is made by scripts/make_test_references.py (65536 spp; its
-own noise relMSE 3.7e-5, about 120x below the relMSE pinned here).
+own noise in the same metric 5.9e-4, about 1/100 of the relMSE pinned here).
 """
 from pathlib import Path
 
@@ -19,16 +29,28 @@ import pytest
 
 import popvol
 from popvol import metrics
-from popvol.io.images import read_exr
 from popvol.reference import load_reference
 
 FIXTURES = Path(__file__).resolve().parent / "fixtures"
-MEASURED_RELMSE, MEASURED_BRIGHTNESS = 0.0044, 0.864
+
+#: the accuracy goal (not met by this scene yet)
+GOAL_RELMSE, GOAL_BAND = 0.03, 0.05
+#: regression guard margins, derived from the goal
+RELMSE_GUARD, BAND_GUARD = 0.5 * GOAL_RELMSE, 0.6 * GOAL_BAND
+#: popvol's last measured figures for the default method (module docstring)
+MEASURED_RELMSE, MEASURED_BRIGHTNESS = 0.0636, 0.864
+MEASURED_BANDS = {"dim": 1.032, "mid": 0.836, "bright": 0.779}
+MEASURED_WALK_RELMSE = 0.840
 
 
 @pytest.fixture(scope="module")
 def reference():
-    return read_exr(FIXTURES / "regression_cloud.exr")
+    return load_reference(FIXTURES / "regression_cloud.exr")
+
+
+@pytest.fixture(scope="module")
+def mask(reference):
+    return metrics.medium_mask(reference.image, popvol.load_scene(FIXTURES / "regression_cloud.toml"))
 
 
 def render(**overrides):
@@ -36,30 +58,37 @@ def render(**overrides):
     return popvol.render(scene, popvol.solve(scene))
 
 
-def test_default_method_change_detector_against_mitsuba(reference):
-    """Change detector: relMSE no more than 10 % above, and brightness within 0.05 of, the
-    figures popvol measured for the default method (MEASURED_*; module docstring)."""
+def test_default_method_regression_guard_against_mitsuba(reference, mask):
+    """Regression guard: relMSE at most RELMSE_GUARD + the reference's noise above, and the
+    brightness ratio overall and in each band within BAND_GUARD of, the figures popvol measured
+    for the default method (MEASURED_*; the module docstring says why these and not the GOAL)."""
     img = render()
-    relmse = metrics.relmse(img, reference)
-    brightness = metrics.brightness_ratio(img, reference)
-    print(f"relMSE {relmse:.4f}, brightness x{brightness:.3f}")
-    assert relmse <= 1.10 * MEASURED_RELMSE
-    assert brightness == pytest.approx(MEASURED_BRIGHTNESS, abs=0.05)
+    m = metrics.compare(img, reference.image, mask, reference.variance)
+    b = m["brightness_bands"]
+    print(f"relMSE {m['relmse']:.4f}, brightness x{m['brightness_ratio']:.3f} (dim x{b['dim']:.3f}, "
+          f"mid x{b['mid']:.3f}, bright x{b['bright']:.3f}), reference noise {m['reference_noise_relmse']:.2g}, "
+          f"{m['mask_pixels']} medium pixels")
+    assert m["relmse"] <= MEASURED_RELMSE + RELMSE_GUARD + m["reference_noise_relmse"]
+    assert m["brightness_ratio"] == pytest.approx(MEASURED_BRIGHTNESS, abs=BAND_GUARD)
+    for name, measured in MEASURED_BANDS.items():
+        assert b[name] == pytest.approx(measured, abs=BAND_GUARD), name
 
 
-def test_default_is_far_better_than_the_walk_alone(reference):
+def test_default_is_far_better_than_the_walk_alone(reference, mask):
     """The walk alone (no diffusion stage) errs far more on the same reference: measured relMSE
-    0.119, brightness x1.89, against the default's 0.0044."""
-    walk = metrics.relmse(render(isotropic="walk"), reference)
+    0.840, brightness x1.70, against the default's 0.0636."""
+    walk = metrics.relmse(render(isotropic="walk"), reference.image, mask)
     assert walk > 5 * MEASURED_RELMSE
 
 
-def test_fixture_reference_loads_and_names_its_scene_portably():
-    """The committed reference loads with its sidecars (65536 spp in 16 passes), its noise is far
-    below the pinned relMSE, and its metadata names the scene relative to the fixture folder, not
-    by a path of the machine that rendered it."""
-    ref = load_reference(FIXTURES / "regression_cloud.exr")
-    assert (ref.spp, ref.passes) == (65536, 16)
-    assert ref.noise_relmse() < 0.02 * MEASURED_RELMSE
-    scene = Path(ref.meta["scene"])
+def test_fixture_reference_loads_and_names_its_scene_portably(reference, mask):
+    """The committed reference loads with its sidecars (65536 spp in 16 passes), its noise in
+    the same metric is far below the pinned relMSE, and its metadata names the scene relative
+    to the fixture folder, not by a path of the machine that rendered it. The optical-depth mask
+    holds the luminance mask's pixels (black background) and a thin fringe more."""
+    assert (reference.spp, reference.passes) == (65536, 16)
+    assert reference.noise_relmse(mask) < 0.02 * MEASURED_RELMSE
+    lum = metrics.luminance_mask(reference.image)
+    assert (lum & ~mask).sum() == 0 and lum.sum() <= mask.sum() <= 1.1 * lum.sum()
+    scene = Path(reference.meta["scene"])
     assert not scene.is_absolute() and (FIXTURES / scene).is_file()

@@ -1,15 +1,54 @@
-"""Image error metrics against a reference, and the comparison figure.
+"""Image error metrics of popvol against a reference, on the pixels that see the medium, and the
+comparison figure.
 
-All functions take linear HDR images float (H, W, 3) of equal shape.
+Images are linear HDR RGB, float (H, W, 3) of equal shape (any float dtype; computed in
+float64). A *mask* is bool (H, W): the pixels that see the medium. The relative metrics are
+taken on those pixels only, so that a black background adds no zeros to them and a sky seen
+around the medium does not count.
+
+Definitions (M = the masked pixels, N = |M|, Y = luminance = RGB @ ``envmap.LUMINANCE``):
+
+- ``eps = EPS_FRACTION * (mean over M of Y_ref)^2``, ``EPS_FRACTION = 0.01``: a floor of the
+  denominator one tenth of the medium's mean luminance, squared. It scales with the
+  reference, so every metric below is unchanged when both images are scaled by the same
+  factor.
+- relMSE = ``1 / (3 N) * sum over p in M and the channels c of
+  (img[p, c] - ref[p, c])^2 / (ref[p, c]^2 + eps)``: per channel, so that an error of colour
+  counts as well as one of luminance; one eps (from the luminance) for all three channels.
+- brightness ratio = ``sum over M of Y_img / sum over M of Y_ref`` (1 = equally bright).
+- band ratios: the same ratio on three bands of M by the reference's luminance rank: the
+  dimmest 50 % of M (``dim``), the next 40 % (``mid``) and the brightest 10 % (``bright``);
+  ties are split by pixel order (a stable sort), so the bands always have those sizes.
+- the reference's own noise, in the same metric: ``1 / (3 N) * sum over M and c of
+  var[p, c] / (ref[p, c]^2 + eps)`` with ``var`` the variance of the reference's mean per pixel
+  (``Reference.variance``) and the same eps and mask: the relMSE expected of the reference
+  itself against the truth.
+
+The mask: with the scene at hand, :func:`optical_depth_mask`, the pixels whose camera ray
+(through the pixel's centre) crosses the medium with optical depth above
+``MASK_OPTICAL_DEPTH``; without it, :func:`luminance_mask`, the pixels whose reference
+luminance exceeds ``LUMINANCE_MASK_FRACTION`` of its maximum. The latter is right only on a
+black background: a bright background (a sky) passes it everywhere.
+
+A metric without a value (an empty mask, a reference that is black on the mask, an empty band)
+is NaN.
 """
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from .envmap import LUMINANCE
 from .errors import PopvolError
 
-RELMSE_EPS = 0.01
+#: eps of relMSE = EPS_FRACTION * (mean reference luminance on the mask)^2
+EPS_FRACTION = 0.01
+#: a camera ray sees the medium when its optical depth exceeds this (about 1 % extinction)
+MASK_OPTICAL_DEPTH = 0.01
+#: fallback mask without a scene: reference luminance above this fraction of its maximum
+LUMINANCE_MASK_FRACTION = 0.01
+#: (name, lower, upper) fractions of the masked pixels ranked by reference luminance
+BANDS = (("dim", 0.0, 0.5), ("mid", 0.5, 0.9), ("bright", 0.9, 1.0))
 
 
 def _pair(img, ref):
@@ -21,33 +60,205 @@ def _pair(img, ref):
     return img, ref
 
 
-def relmse(img, ref, eps: float = RELMSE_EPS) -> float:
-    """Relative mean squared error: mean over pixels and channels of (img - ref)^2 / (ref^2 + eps)."""
-    img, ref = _pair(img, ref)
-    return float(np.mean((img - ref) ** 2 / (ref ** 2 + eps)))
+def luminance(rgb) -> np.ndarray:
+    """Relative luminance of linear RGB (Rec. 709 weights, ``envmap.LUMINANCE``), float64 (...)."""
+    rgb = np.asarray(rgb, np.float64)
+    return rgb @ LUMINANCE
 
 
-def relmse_map(img, ref, eps: float = RELMSE_EPS) -> np.ndarray:
-    """Per-pixel relMSE (mean over channels), float64 (H, W)."""
+# -- the mask ------------------------------------------------------------------------------
+
+def luminance_mask(ref, fraction: float = LUMINANCE_MASK_FRACTION) -> np.ndarray:
+    """bool (H, W): reference luminance above ``fraction`` of its maximum (none if the reference
+    is black). The fallback when the scene is not at hand; it assumes a black background (a
+    bright sky passes it everywhere; :func:`optical_depth_mask` does not)."""
+    y = luminance(ref)
+    top = float(y.max()) if y.size else 0.0
+    if not top > 0:
+        return np.zeros(y.shape, bool)
+    return y > fraction * top
+
+
+def camera_optical_depth(scene, step: float = 0.5) -> np.ndarray:
+    """float64 (H, W): optical depth of each camera ray through its pixel's centre across the
+    medium, in the channel of largest extinction (``max(scale) * integral of density``).
+
+    Marched from the ray's entry to its exit of the medium's box with at most ``step`` times the
+    smallest voxel size (midpoint rule), the density trilinear between voxel centres and
+    clamped to the edge in the outer half cell, as the renderer takes it.
+    """
+    cam, med = scene.camera, scene.medium
+    lo, hi = med.bounds
+    tau = np.zeros(cam.height * cam.width)
+    _optical_depth(np.ascontiguousarray(cam.ray_directions().reshape(-1, 3)), np.asarray(cam.origin, np.float64),
+                   lo, hi, med.density, np.asarray(med.origin, np.float64), np.asarray(med.voxel_size, np.float64),
+                   step * float(med.voxel_size.min()), tau)
+    return tau.reshape(cam.height, cam.width) * float(np.max(med.scale))
+
+
+@nb.njit(parallel=True, cache=True)
+def _optical_depth(dirs, o, lo, hi, density, origin, voxel, h, out):
+    """out[r] = integral of the density along o + t dirs[r] inside the box [lo, hi] (t >= 0)."""
+    nx, ny, nz = density.shape
+    for r in nb.prange(dirs.shape[0]):
+        t0, t1 = 0.0, np.inf
+        for a in range(3):
+            da = dirs[r, a]
+            if da == 0.0:
+                if o[a] < lo[a] or o[a] > hi[a]:
+                    t1 = -1.0
+                continue
+            ta, tb = (lo[a] - o[a]) / da, (hi[a] - o[a]) / da
+            t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+        if not t1 > t0:
+            continue
+        n = max(1, int(np.ceil((t1 - t0) / h)))
+        dt = (t1 - t0) / n
+        acc = 0.0
+        for k in range(n):
+            t = t0 + (k + 0.5) * dt
+            cx = min(max((o[0] + t * dirs[r, 0] - origin[0]) / voxel[0], 0.0), nx - 1.0)
+            cy = min(max((o[1] + t * dirs[r, 1] - origin[1]) / voxel[1], 0.0), ny - 1.0)
+            cz = min(max((o[2] + t * dirs[r, 2] - origin[2]) / voxel[2], 0.0), nz - 1.0)
+            i, j, l = min(int(cx), max(nx - 2, 0)), min(int(cy), max(ny - 2, 0)), min(int(cz), max(nz - 2, 0))
+            fx, fy, fz = cx - i, cy - j, cz - l
+            i1, j1, l1 = min(i + 1, nx - 1), min(j + 1, ny - 1), min(l + 1, nz - 1)
+            acc += ((1 - fx) * ((1 - fy) * ((1 - fz) * density[i, j, l] + fz * density[i, j, l1])
+                                + fy * ((1 - fz) * density[i, j1, l] + fz * density[i, j1, l1]))
+                    + fx * ((1 - fy) * ((1 - fz) * density[i1, j, l] + fz * density[i1, j, l1])
+                            + fy * ((1 - fz) * density[i1, j1, l] + fz * density[i1, j1, l1])))
+        out[r] = acc * dt
+
+
+def optical_depth_mask(scene, threshold: float = MASK_OPTICAL_DEPTH) -> np.ndarray:
+    """bool (H, W): the pixels whose camera ray crosses the medium with optical depth above
+    ``threshold`` (:func:`camera_optical_depth`): the medium's pixels whatever the background."""
+    return camera_optical_depth(scene) > threshold
+
+
+def medium_mask(ref, scene=None) -> np.ndarray:
+    """The metrics' mask, bool (H, W): :func:`optical_depth_mask` of ``scene`` if given (its
+    camera must be the reference's size), else :func:`luminance_mask` of ``ref``."""
+    if scene is None:
+        return luminance_mask(ref)
+    mask = optical_depth_mask(scene)
+    ref = np.asarray(ref)
+    if mask.shape != ref.shape[:2]:
+        raise PopvolError(f"camera {mask.shape[1]}x{mask.shape[0]} and reference "
+                          f"{ref.shape[1]}x{ref.shape[0]} differ in size")
+    return mask
+
+
+def _mask(mask, ref) -> np.ndarray:
+    if mask is None:
+        return luminance_mask(ref)
+    mask = np.asarray(mask)
+    if mask.shape != ref.shape[:2]:
+        raise PopvolError(f"mask {mask.shape[1::-1]} and reference {ref.shape[1::-1]} differ in size")
+    return mask.astype(bool)
+
+
+# -- the metrics ---------------------------------------------------------------------------
+
+def relmse_eps(ref, mask=None) -> float:
+    """eps of relMSE: ``EPS_FRACTION * (mean reference luminance on the mask)^2`` (NaN on an
+    empty mask). ``mask`` bool (H, W), default :func:`luminance_mask`."""
+    ref = np.asarray(ref, np.float64)
+    mask = _mask(mask, ref)
+    if not mask.any():
+        return float("nan")
+    return EPS_FRACTION * float(luminance(ref)[mask].mean()) ** 2
+
+
+def _relative(num, ref, mask):
+    """Mean over masked pixels and channels of num / (ref^2 + eps); NaN where undefined."""
+    eps = relmse_eps(ref, mask)
+    if not eps > 0:
+        return float("nan")
+    return float(np.mean(num[mask] / (ref[mask] ** 2 + eps)))
+
+
+def relmse(img, ref, mask=None) -> float:
+    """Scale-free relMSE on the medium's pixels (module docstring): mean over the masked pixels
+    and the 3 channels of (img - ref)^2 / (ref^2 + eps), eps = :func:`relmse_eps`.
+    ``mask`` bool (H, W), default :func:`luminance_mask` of ``ref``."""
     img, ref = _pair(img, ref)
-    return np.mean((img - ref) ** 2 / (ref ** 2 + eps), axis=-1)
+    mask = _mask(mask, ref)
+    return _relative((img - ref) ** 2, ref, mask)
+
+
+def relmse_map(img, ref, mask=None) -> np.ndarray:
+    """Per-pixel relMSE (mean over channels, the same eps), float64 (H, W); NaN off the mask."""
+    img, ref = _pair(img, ref)
+    mask = _mask(mask, ref)
+    eps = relmse_eps(ref, mask)
+    out = np.full(ref.shape[:2], np.nan)
+    if eps > 0:
+        out[mask] = np.mean((img[mask] - ref[mask]) ** 2 / (ref[mask] ** 2 + eps), axis=-1)
+    return out
+
+
+def noise_relmse(variance, ref, mask=None) -> float:
+    """The reference's own noise in the relMSE above: mean over the masked pixels and channels
+    of variance / (ref^2 + eps), same eps. ``variance`` float (H, W, 3), the variance of the
+    reference's mean per pixel; ``mask`` bool (H, W), default :func:`luminance_mask`."""
+    var, ref = _pair(variance, ref)
+    mask = _mask(mask, ref)
+    return _relative(var, ref, mask)
+
+
+def _ratio(y_img, y_ref) -> float:
+    den = float(y_ref.sum())
+    return float(y_img.sum()) / den if den > 0 else float("nan")
+
+
+def brightness_ratio(img, ref, mask=None) -> float:
+    """Sum of popvol's luminance over the reference's on the mask (1 = equally bright).
+    ``mask`` bool (H, W), default :func:`luminance_mask` of ``ref``."""
+    img, ref = _pair(img, ref)
+    mask = _mask(mask, ref)
+    return _ratio(luminance(img)[mask], luminance(ref)[mask])
+
+
+def bands(ref, mask=None) -> dict:
+    """The masked pixels in three bands of the reference's luminance: {name: bool (H, W)} for
+    ``BANDS`` (dimmest 50 %, next 40 %, brightest 10 % of the mask's pixels by rank)."""
+    ref = np.asarray(ref, np.float64)
+    mask = _mask(mask, ref)
+    flat = np.flatnonzero(mask)
+    ranked = flat[np.argsort(luminance(ref).ravel()[flat], kind="stable")]
+    n = len(ranked)
+    out = {}
+    for name, a, b in BANDS:
+        m = np.zeros(mask.size, bool)
+        m[ranked[int(np.floor(a * n)): int(np.floor(b * n)) if b < 1 else n]] = True
+        out[name] = m.reshape(mask.shape)
+    return out
+
+
+def band_ratios(img, ref, mask=None) -> dict:
+    """{"dim", "mid", "bright"}: :func:`brightness_ratio` on each of :func:`bands`."""
+    img, ref = _pair(img, ref)
+    y_img, y_ref = luminance(img), luminance(ref)
+    return {name: _ratio(y_img[b], y_ref[b]) for name, b in bands(ref, mask).items()}
+
+
+def ratio_map(img, ref, mask=None) -> np.ndarray:
+    """Per-pixel popvol / reference luminance, float64 (H, W); NaN off the mask and where the
+    reference is black."""
+    img, ref = _pair(img, ref)
+    mask = _mask(mask, ref)
+    y_img, y_ref = luminance(img), luminance(ref)
+    out = np.full(ref.shape[:2], np.nan)
+    ok = mask & (y_ref > 0)
+    out[ok] = y_img[ok] / y_ref[ok]
+    return out
 
 
 def rmse(img, ref) -> float:
+    """Root mean squared error over the whole frame and the channels (absolute, in radiance)."""
     img, ref = _pair(img, ref)
     return float(np.sqrt(np.mean((img - ref) ** 2)))
-
-
-def brightness_ratio(img, ref) -> float:
-    """Mean of the image over mean of the reference (1 = equally bright)."""
-    img, ref = _pair(img, ref)
-    return float(img.mean() / max(ref.mean(), 1e-300))
-
-
-def luminance(rgb) -> np.ndarray:
-    """Relative luminance of linear RGB (Rec. 709 weights, ``envmap.LUMINANCE``), float64."""
-    rgb = np.asarray(rgb, np.float64)
-    return rgb @ LUMINANCE
 
 
 def ssim(img, ref) -> float:
@@ -80,14 +291,28 @@ def flip(img, ref) -> float | None:
     return float(mean_error)
 
 
-def compare(img, ref) -> dict:
-    """Every metric at once (the keys of ``popvol compare --json``)."""
-    return {"relmse": relmse(img, ref), "relmse_eps": RELMSE_EPS, "rmse": rmse(img, ref),
-            "brightness_ratio": brightness_ratio(img, ref), "ssim": ssim(img, ref), "flip": flip(img, ref)}
+def compare(img, ref, mask=None, variance=None) -> dict:
+    """Every metric at once (the metric keys of ``popvol compare --json``).
+
+    ``mask`` bool (H, W), default :func:`luminance_mask` of ``ref``; ``variance`` float (H, W, 3),
+    the reference's variance of the mean, for ``reference_noise_relmse`` (None without it).
+    Keys: relmse, relmse_eps, brightness_ratio, brightness_bands {dim, mid, bright},
+    reference_noise_relmse, mask_pixels, pixels, rmse (whole frame, absolute), ssim, flip.
+    """
+    img, ref = _pair(img, ref)
+    mask = _mask(mask, ref)
+    return {"relmse": relmse(img, ref, mask), "relmse_eps": relmse_eps(ref, mask),
+            "brightness_ratio": brightness_ratio(img, ref, mask),
+            "brightness_bands": band_ratios(img, ref, mask),
+            "reference_noise_relmse": None if variance is None else noise_relmse(variance, ref, mask),
+            "mask_pixels": int(mask.sum()), "pixels": int(mask.size),
+            "rmse": rmse(img, ref), "ssim": ssim(img, ref), "flip": flip(img, ref)}
 
 
-def comparison_figure(path, img, ref, exposure: float = 0.0, title: str = "") -> None:
-    """popvol | reference | per-pixel relative error (log scale heat map with a colour bar)."""
+def comparison_figure(path, img, ref, exposure: float = 0.0, title: str = "", mask=None) -> None:
+    """popvol | reference | per-pixel relative error (log heat map) | luminance ratio popvol /
+    reference (diverging around 1, log scale 0.5 to 2); both maps on the mask only (``mask``
+    bool (H, W), default :func:`luminance_mask` of ``ref``)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -95,18 +320,32 @@ def comparison_figure(path, img, ref, exposure: float = 0.0, title: str = "") ->
 
     from .io.images import tonemap
     img, ref = _pair(img, ref)
+    mask = _mask(mask, ref)
     h, w = ref.shape[:2]
     aspect = w / h
-    fig, axes = plt.subplots(1, 3, figsize=(3 * 3.6 * aspect / 1.2 + 1.2, 3.6 / 1.2 + 0.6), dpi=80,
-                             gridspec_kw={"width_ratios": [1, 1, 1.12]})
-    err = np.sqrt(relmse_map(img, ref))          # relative error per pixel
+    fig, axes = plt.subplots(1, 4, figsize=(4 * 3.6 * aspect / 1.2 + 2.4, 3.6 / 1.2 + 0.6), dpi=80,
+                             gridspec_kw={"width_ratios": [1, 1, 1.12, 1.12]})
+    err = np.sqrt(relmse_map(img, ref, mask))          # relative error per pixel, NaN off the mask
+    bright = band_ratios(img, ref, mask)
     axes[0].imshow(tonemap(img, exposure))
-    axes[0].set_title(f"popvol (brightness x{brightness_ratio(img, ref):.2f})")
+    axes[0].set_title(f"popvol (brightness x{brightness_ratio(img, ref, mask):.2f})")
     axes[1].imshow(tonemap(ref, exposure))
     axes[1].set_title("reference")
-    im = axes[2].imshow(np.maximum(err, 1e-3), cmap="inferno", norm=LogNorm(vmin=1e-3, vmax=max(1.0, err.max())))
-    axes[2].set_title(f"relative error (relMSE {relmse(img, ref):.3g})")
-    fig.colorbar(im, ax=axes[2], fraction=0.046, pad=0.02, label="|popvol - ref| / sqrt(ref^2 + 0.01)")
+    top = float(np.nanmax(err)) if np.isfinite(err).any() else 1.0
+    im = axes[2].imshow(np.ma.masked_invalid(np.maximum(err, 1e-3)), cmap=plt.get_cmap("inferno").with_extremes(bad="0.85"),
+                        norm=LogNorm(vmin=1e-3, vmax=max(1.0, top)))
+    axes[2].set_title(f"relative error (relMSE {relmse(img, ref, mask):.3g})")
+    fig.colorbar(im, ax=axes[2], fraction=0.046, pad=0.02, label="|popvol - ref| / sqrt(ref^2 + eps)")
+    ratio = np.clip(ratio_map(img, ref, mask), 0.5, 2.0)
+    cmap = plt.get_cmap("RdBu_r").with_extremes(bad="0.85")      # off the mask: grey
+    im = axes[3].imshow(np.ma.masked_invalid(ratio), cmap=cmap, norm=LogNorm(vmin=0.5, vmax=2.0))
+    axes[3].set_title("popvol / ref: dim x{dim:.2f}, mid x{mid:.2f}, bright x{bright:.2f}".format(**bright),
+                      fontsize="small")
+    cb = fig.colorbar(im, ax=axes[3], fraction=0.046, pad=0.02, label="luminance ratio")
+    ticks = [0.5, 0.71, 1.0, 1.41, 2.0]
+    cb.set_ticks(ticks)
+    cb.set_ticklabels([f"{t:g}" for t in ticks])
+    cb.minorticks_off()
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])

@@ -160,11 +160,15 @@ class Reference:
     variance: np.ndarray | None  # float64 (H, W, 3): variance of the mean (None with < 2 passes)
     meta: dict
 
-    def noise_relmse(self, eps: float = 0.01) -> float | None:
-        """Expected relMSE of this reference against the truth, from its pass-to-pass variance."""
+    def noise_relmse(self, mask: np.ndarray | None = None) -> float | None:
+        """Expected relMSE of this reference against the truth, from its pass-to-pass variance,
+        in the scale-free metric of :func:`popvol.metrics.relmse` (same mask, same eps): None
+        with fewer than 2 passes. ``mask`` bool (H, W), the pixels that see the medium
+        (:func:`popvol.metrics.medium_mask`); default the reference's luminance mask."""
+        from .metrics import noise_relmse
         if self.variance is None:
             return None
-        return float(np.mean(self.variance / (self.image.astype(np.float64) ** 2 + eps)))
+        return noise_relmse(self.variance, self.image, mask)
 
 
 def _sidecars(path: Path) -> tuple[Path, Path]:

@@ -1,0 +1,192 @@
+"""The metric of popvol against a reference (popvol.metrics): relMSE on the pixels that see the
+medium with an epsilon from the reference's own brightness, so that it is unchanged when both
+images are scaled; brightness ratios overall and in three luminance bands; the reference's
+noise in the same metric; the optical-depth mask; ``popvol compare``'s output."""
+import json
+
+import numpy as np
+import pytest
+
+import popvol
+from popvol import metrics
+from popvol.camera import Camera
+from popvol.errors import PopvolError
+from popvol.medium import Medium
+from popvol.reference import Reference
+from popvol.scene import Scene
+
+
+@pytest.fixture
+def pair(rng):
+    """A dim reference (pixels ~1e-3 to 0.1) on a black border, popvol off by up to 30 %, the
+    reference's variance of the mean, and the mask of the non-black pixels; all float64."""
+    ref = np.zeros((20, 30, 3))
+    ref[3:17, 4:26] = 10.0 ** rng.uniform(-3, -1, (14, 22, 1)) * rng.uniform(0.8, 1.2, (14, 22, 3))
+    img = ref * rng.uniform(0.7, 1.3, ref.shape)
+    var = (0.01 * ref) ** 2 * rng.uniform(0.5, 2.0, ref.shape)
+    mask = np.zeros((20, 30), bool)
+    mask[3:17, 4:26] = True
+    return img, ref, var, mask
+
+
+@pytest.mark.parametrize("factor", [1e-3, 1e3])
+def test_every_metric_is_unchanged_when_both_images_are_scaled(pair, factor):
+    img, ref, var, mask = pair
+    base = metrics.compare(img, ref, mask, var)
+    scaled = metrics.compare(factor * img, factor * ref, mask, factor ** 2 * var)
+    for key in ("relmse", "brightness_ratio", "reference_noise_relmse"):
+        assert scaled[key] == pytest.approx(base[key], rel=1e-12), key
+    for name in ("dim", "mid", "bright"):
+        assert scaled["brightness_bands"][name] == pytest.approx(base["brightness_bands"][name], rel=1e-12)
+    assert scaled["relmse_eps"] == pytest.approx(factor ** 2 * base["relmse_eps"], rel=1e-12)
+    # the fallback mask (reference luminance > 1 % of its maximum) scales with the images too
+    assert metrics.relmse(factor * img, factor * ref) == pytest.approx(metrics.relmse(img, ref), rel=1e-12)
+    np.testing.assert_array_equal(metrics.luminance_mask(factor * ref), metrics.luminance_mask(ref))
+    # scaling one image alone is an error of brightness, and the metric sees it
+    assert metrics.relmse(factor * img, ref, mask) > 10 * base["relmse"]
+    assert metrics.relmse(img, factor * ref, mask) > 10 * base["relmse"]
+    assert metrics.brightness_ratio(factor * img, ref, mask) == pytest.approx(factor * base["brightness_ratio"])
+
+
+def test_relmse_is_the_documented_mean_on_the_mask(pair):
+    """Per channel (img - ref)^2 / (ref^2 + eps) averaged over the masked pixels and the channels,
+    eps = 0.01 (mean reference luminance on the mask)^2; the black border adds nothing."""
+    img, ref, var, mask = pair
+    y = ref @ np.array([0.2126, 0.7152, 0.0722])
+    eps = 0.01 * y[mask].mean() ** 2
+    assert metrics.relmse_eps(ref, mask) == pytest.approx(eps, rel=1e-12)
+    expected = np.mean((img[mask] - ref[mask]) ** 2 / (ref[mask] ** 2 + eps))
+    assert metrics.relmse(img, ref, mask) == pytest.approx(expected, rel=1e-12)
+    assert metrics.noise_relmse(var, ref, mask) == pytest.approx(np.mean(var[mask] / (ref[mask] ** 2 + eps)), rel=1e-12)
+    # a uniform 10 % error reads as nearly 0.01 (less only on the dimmest pixels, ref^2 < eps);
+    # the old absolute epsilon of 0.01 over the whole frame read it 20 times smaller
+    assert 0.006 < metrics.relmse(1.1 * ref, ref, mask) < 0.01
+    assert np.mean(0.01 * ref ** 2 / (ref ** 2 + 0.01)) < 0.1 * metrics.relmse(1.1 * ref, ref, mask)
+    # the black border is not in the metric: cropping it away changes nothing
+    crop = (slice(3, 17), slice(4, 26))
+    assert metrics.relmse(img[crop], ref[crop], mask[crop]) == pytest.approx(metrics.relmse(img, ref, mask), rel=1e-12)
+    assert metrics.relmse(ref, ref, mask) == 0
+    pm = metrics.relmse_map(img, ref, mask)
+    assert np.isnan(pm[~mask]).all() and np.nanmean(pm) == pytest.approx(expected, rel=1e-12)
+
+
+def test_bands_split_the_mask_50_40_10_by_reference_luminance(pair):
+    img, ref, var, mask = pair
+    b = metrics.bands(ref, mask)
+    n = mask.sum()                                          # 308 pixels
+    assert [int(b[k].sum()) for k in ("dim", "mid", "bright")] == [n // 2, int(0.9 * n) - n // 2, n - int(0.9 * n)]
+    assert not (b["dim"] & b["mid"]).any() and not (b["mid"] & b["bright"]).any()
+    assert ((b["dim"] | b["mid"] | b["bright"]) == mask).all()
+    y = metrics.luminance(ref)
+    assert y[b["dim"]].max() <= y[b["mid"]].min() and y[b["mid"]].max() <= y[b["bright"]].min()
+    # the brightest 10 % 20 % too dark, the rest right
+    test = ref * np.where(b["bright"], 0.8, 1.0)[..., None]
+    r = metrics.band_ratios(test, ref, mask)
+    assert r["dim"] == pytest.approx(1.0) and r["mid"] == pytest.approx(1.0) and r["bright"] == pytest.approx(0.8)
+    overall = metrics.brightness_ratio(test, ref, mask)
+    assert 0.8 < overall < 1.0
+    assert overall == pytest.approx((y[mask].sum() - 0.2 * y[b["bright"]].sum()) / y[mask].sum())
+    ratio = metrics.ratio_map(test, ref, mask)
+    assert np.isnan(ratio[~mask]).all()
+    np.testing.assert_allclose(ratio[b["bright"]], 0.8)
+    np.testing.assert_allclose(ratio[b["dim"] | b["mid"]], 1.0)
+
+
+def test_undefined_metrics_are_nan_and_bad_shapes_an_error(pair):
+    img, ref, var, mask = pair
+    none = np.zeros_like(mask)
+    assert np.isnan(metrics.relmse(img, ref, none)) and np.isnan(metrics.brightness_ratio(img, ref, none))
+    black = np.zeros_like(ref)
+    assert not metrics.luminance_mask(black).any()
+    m = metrics.compare(img, black, mask)
+    assert np.isnan(m["relmse"]) and np.isnan(m["brightness_ratio"]) and m["reference_noise_relmse"] is None
+    assert m["mask_pixels"] == mask.sum() and m["pixels"] == mask.size
+    with pytest.raises(PopvolError, match="differ in size"):
+        metrics.relmse(img[:4], ref)
+    with pytest.raises(PopvolError, match="mask"):
+        metrics.relmse(img, ref, mask[:4])
+
+
+def test_reference_noise_is_in_the_same_metric(pair):
+    img, ref, var, mask = pair
+    r = Reference(ref.astype(np.float32), 64, 4, var, {})
+    assert r.noise_relmse(mask) == pytest.approx(metrics.noise_relmse(var, ref.astype(np.float32), mask), rel=1e-12)
+    # a 1 % standard deviation on pixels well above eps: noise ~1e-4 in relMSE
+    assert 2e-5 < r.noise_relmse(mask) < 3e-4
+    assert Reference(ref, 1, 1, None, {}).noise_relmse(mask) is None
+
+
+def box_scene(width=33, height=33, background=(0.0, 0.0, 0.0), scale=2.0):
+    """A uniform unit cube of density 1 at the origin, seen from +z at distance 3."""
+    med = Medium(np.ones((10, 10, 10), np.float32), 0.1, np.full(3, -0.45), scale=scale)
+    cam = Camera(np.array([0.0, 0.3, 3.0]), np.zeros(3), fov=40.0, width=width, height=height)
+    return Scene(med, [], cam, background=np.asarray(background, np.float64))
+
+
+def test_camera_optical_depth_is_scale_times_the_chord_of_a_uniform_box():
+    sc = box_scene()
+    tau = metrics.camera_optical_depth(sc)
+    assert tau.shape == (33, 33) and tau.dtype == np.float64
+    d = sc.camera.ray_directions()
+    o = sc.camera.origin
+    with np.errstate(divide="ignore"):
+        ta, tb = (-0.5 - o) / d, (0.5 - o) / d
+    t0 = np.maximum(np.minimum(ta, tb).max(-1), 0)
+    t1 = np.maximum(ta, tb).min(-1)
+    chord = np.maximum(t1 - t0, 0)
+    np.testing.assert_allclose(tau, 2.0 * chord, rtol=1e-9, atol=1e-12)
+    assert (chord == 0).any() and (chord > 1).any()          # the box and empty sky around it
+    np.testing.assert_array_equal(metrics.optical_depth_mask(sc), 2.0 * chord > metrics.MASK_OPTICAL_DEPTH)
+
+
+def test_optical_depth_mask_picks_the_medium_on_a_sky_where_luminance_cannot():
+    """On a bright background the luminance mask takes the sky too; the optical-depth mask
+    (what ``popvol compare`` uses, the scene at hand) takes the medium's pixels only."""
+    sc = box_scene(background=(0.3, 0.4, 0.6), scale=0.5)
+    ref = np.broadcast_to(np.asarray(sc.background), (33, 33, 3)).copy()
+    mask = metrics.medium_mask(ref, sc)
+    tau = metrics.camera_optical_depth(sc)
+    ref *= np.exp(-tau)[..., None]                          # the sky seen through the absorbing box
+    assert metrics.luminance_mask(ref).all()
+    np.testing.assert_array_equal(metrics.medium_mask(ref, sc), mask)
+    assert 0 < mask.sum() < 0.5 * mask.size
+    with pytest.raises(PopvolError, match="differ in size"):
+        metrics.medium_mask(ref[:10], sc)
+
+
+def test_comparison_figure_has_the_ratio_map(pair, tmp_path):
+    pytest.importorskip("matplotlib")
+    img, ref, var, mask = pair
+    out = tmp_path / "fig.png"
+    metrics.comparison_figure(out, img, ref, 6.0, "test", mask=mask)
+    from PIL import Image
+    w, h = Image.open(out).size
+    assert out.stat().st_size > 2000 and w > 3 * h        # four panels side by side
+
+
+def test_compare_command_prints_and_writes_the_new_metric(tmp_path, capsys):
+    """``popvol compare`` against popvol's own image at half brightness: relMSE from it, ratio
+    x2 overall and in every band, no reference noise (no passes stored), and the mask size."""
+    pytest.importorskip("skimage")
+    from popvol.cli import main
+    from popvol.io.images import write_exr
+    sc = popvol.load_scene(None, width=24, height=16, resolution=16)
+    img = popvol.render(sc, popvol.solve(sc)).astype(np.float64)
+    ref = tmp_path / "half.exr"
+    write_exr(ref, (0.5 * img).astype(np.float32))
+    out_json, fig = tmp_path / "cmp.json", tmp_path / "cmp.png"
+    with pytest.raises(SystemExit) as e:
+        main(["compare", "--reference", str(ref), "--resolution", "16", "--json", str(out_json),
+              "--figure", str(fig)])
+    assert e.value.code == 0
+    printed = capsys.readouterr().out
+    res = json.loads(out_json.read_text())
+    assert res["brightness_ratio"] == pytest.approx(2.0, rel=1e-5)
+    for name in ("dim", "mid", "bright"):
+        assert res["brightness_bands"][name] == pytest.approx(2.0, rel=1e-5)
+    mask = metrics.medium_mask(0.5 * img, sc)
+    assert res["mask_pixels"] == mask.sum() > 0 and res["pixels"] == 24 * 16
+    assert res["relmse"] == pytest.approx(metrics.relmse(img, 0.5 * img, mask), rel=1e-4)
+    assert res["reference_noise_relmse"] is None and "optical depth" in res["mask"]
+    assert "relMSE" in printed and "x2.000" in printed and "bright 10 % x2.000" in printed
+    assert "reference noise n/a" in printed and fig.stat().st_size > 2000
