@@ -62,18 +62,17 @@ def cli():
 @click.option("--stats", type=click.Path(dir_okay=False), help="Write timings, iterations and energy budget as JSON.")
 def render(scene, output, exr, width, height, stats, **knobs):
     """Render SCENE (a TOML file; the built-in demo cloud if omitted) to an image."""
+    from .io.files import write_text_atomically
     from .io.images import write_image
     from . import solve
     from .render import render as render_image
     from .scene import load_scene
 
-    _check_writable(output, "-o/--output")
-    if exr:
-        _check_writable(exr, "--exr")
-    if stats:
-        _check_writable(stats, "--stats")
+    outputs = {"-o/--output": (output, (".png", ".exr")), "--exr": (exr, (".exr",)), "--stats": (stats, (".json",))}
+    _check_outputs(outputs, [scene] if scene else [])
     t0 = time.perf_counter()
     sc = load_scene(scene, width=width, height=height, **_method_overrides("render", knobs))
+    _check_outputs(outputs, sc.files)
     t_load = time.perf_counter() - t0
     tol = sc.method.tolerance
     with _progress() as bar:
@@ -107,7 +106,7 @@ def render(scene, output, exr, width, height, stats, **knobs):
     if stats:
         doc = {"scene": sc.source, "image": str(output), "width": sc.camera.width, "height": sc.camera.height,
                "method": vars(sc.method), "seconds": seconds, "domains": info["domains"]}
-        Path(stats).write_text(json.dumps(doc, indent=2))
+        write_text_atomically(stats, json.dumps(_json_safe(doc), indent=2, allow_nan=False))
     its = ", ".join(str(d["iterations"]) for d in info["domains"])
     solvers = "/".join(sorted({d["solver"] for d in info["domains"]}))
     click.echo(f"{output}: {sc.camera.width}x{sc.camera.height} in {seconds['total']:.2f} s "
@@ -123,12 +122,12 @@ def render(scene, output, exr, width, height, stats, **knobs):
 def bench(json_out, quick):
     """Measure propagation and render throughput and the demo's end-to-end time."""
     from .bench import run_benchmarks
-    if json_out:
-        _check_writable(json_out, "--json")
+    from .io.files import write_text_atomically
+    _check_outputs({"--json": (json_out, (".json",))}, [])
     results = run_benchmarks(quick=quick, echo=lambda s: click.echo(s, err=True))
     text = json.dumps(results, indent=2)
     if json_out:
-        Path(json_out).write_text(text)
+        write_text_atomically(json_out, text)
     click.echo(text)
 
 
@@ -192,12 +191,14 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     from .reference import load_reference
     from .render import render as render_image
     from .scene import load_scene
-    for path, opt in ((json_out, "--json"), (figure, "--figure"), (output, "-o/--output")):
-        if path:
-            _check_writable(path, opt)
+    from .io.files import write_text_atomically
+    outputs = {"--json": (json_out, (".json",)), "--figure": (figure, (".png",)),
+               "-o/--output": (output, (".png", ".exr"))}
+    _check_outputs(outputs, [p for p in (scene, ref_path) if p])
     ref = load_reference(ref_path)
     h, w = ref.image.shape[:2]
     sc = load_scene(scene, width=w, height=h, **_method_overrides("compare", knobs))
+    _check_outputs(outputs, sc.files)
     t0 = time.perf_counter()
     solution = solve(sc)
     img = render_image(sc, solution)
@@ -208,7 +209,7 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
            "mask": f"camera ray optical depth > {metrics.MASK_OPTICAL_DEPTH:g}",
            **metrics.compare(img, ref.image, mask, ref.variance)}
     if json_out:
-        Path(json_out).write_text(json.dumps(_json_safe(res), indent=2))
+        write_text_atomically(json_out, json.dumps(_json_safe(res), indent=2, allow_nan=False))
     if figure:
         metrics.comparison_figure(figure, img, ref.image, sc.method.exposure,
                                   f"{Path(sc.source).name}: {_method_label(sc.method)}, "
@@ -283,6 +284,24 @@ def _check_writable(path: str, option: str) -> None:
     parent = Path(path).resolve().parent
     if not parent.is_dir():
         raise PopvolError(f"{option} {path}: folder {parent} does not exist")
+    if Path(path).is_dir():
+        raise PopvolError(f"{option} {path}: is a folder, not a file")
+
+
+def _check_outputs(outputs: dict, inputs) -> None:
+    """Before any work: each output (option -> (path or None, allowed suffixes)) has an allowed
+    suffix, a folder to go in, and is neither an input file nor another output."""
+    seen = {Path(p).resolve(): "the scene's input file " + str(p) for p in inputs}
+    for option, (path, suffixes) in outputs.items():
+        if not path:
+            continue
+        if Path(path).suffix.lower() not in suffixes:
+            raise PopvolError(f"{option} {path}: must end in {' or '.join(suffixes)}")
+        _check_writable(path, option)
+        resolved = Path(path).resolve()
+        if resolved in seen:
+            raise PopvolError(f"{option} {path} is {seen[resolved]}; writing it would overwrite it")
+        seen[resolved] = f"also the output of {option}"
 
 
 def main(argv=None) -> None:
@@ -295,8 +314,8 @@ def main(argv=None) -> None:
         e.show()
         sys.exit(e.exit_code)
     except click.exceptions.Abort:
-        click.echo("popvol: aborted", err=True)
-        sys.exit(1)
+        click.echo("popvol: interrupted", err=True)
+        sys.exit(130)
     except KeyboardInterrupt:
         click.echo("popvol: interrupted", err=True)
         sys.exit(130)

@@ -34,6 +34,7 @@ class Scene:
     method: Method = field(default_factory=Method)
     source: str = "<scene>"
     environment: object = None     # envmap.EnvMap: the background, and the source of some lights
+    files: tuple[Path, ...] = ()   # the files it reads (medium, grids, maps), resolved
 
 
 # ---------------------------------------------------------------------------------------------
@@ -101,6 +102,8 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
         raise PopvolError(f"{source}: missing [medium] table")
     medium = _medium(check.table(data["medium"], "medium", source), source, Path(base_dir))
 
+    if "lights" in data and "light" in data:
+        raise PopvolError(f"{source}: both [light] and [[lights]] are given; put every light in [[lights]]")
     raw_lights = data.get("lights", data.get("light", []))
     if isinstance(raw_lights, dict):
         raw_lights = [raw_lights]
@@ -127,7 +130,21 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
 
     method = method_from_tables(data.get("method", {}), data.get("experimental", {}), source)
     camera = _camera(data.get("camera"), medium, source)
-    return Scene(medium, lights, camera, background, method, source, environment)
+    files = tuple(_files(data, Path(base_dir)))
+    return Scene(medium, lights, camera, background, method, source, environment, files)
+
+
+def _files(data, base: Path):
+    """The resolved paths of every ``file = "..."`` in the scene's tables."""
+    if isinstance(data, dict):
+        for key, value in data.items():
+            if key == "file" and isinstance(value, str):
+                yield (base / value).resolve()
+            else:
+                yield from _files(value, base)
+    elif isinstance(data, list):
+        for value in data:
+            yield from _files(value, base)
 
 
 def _medium(m: dict, src: str, base: Path) -> Medium:
@@ -140,6 +157,10 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
             optics[key] = _optics_grid(optics[key], key, m, src, base)
     if kind == "procedural":
         from .procedural import demo_medium
+        unused = sorted({"file", "grid", "voxel_size", "origin"} & set(m))
+        if unused:
+            raise PopvolError(f"{src}: medium.{unused[0]} applies to a medium read from a file, not to "
+                              "medium.type = 'procedural' (whose size is medium.extent)")
         res = check.integer(m.get("resolution", 96), "medium.resolution", src, 8, 1024)
         seed = check.integer(m.get("seed", 7), "medium.seed", src, 0, 2**32 - 1)
         extent = check.number(m.get("extent", 2.0), "medium.extent", src, 0.0, 1e12, open_interval=True)
@@ -148,6 +169,10 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
     from .io.volumes import read_volume
     if "file" not in m:
         raise PopvolError(f"{src}: medium.type = 'file' needs medium.file")
+    unused = sorted({"resolution", "seed", "extent"} & set(m))
+    if unused:
+        raise PopvolError(f"{src}: medium.{unused[0]} applies to medium.type = 'procedural', not to a "
+                          "medium read from a file")
     vol = read_volume(_path(m["file"], "medium.file", src, base), _text(m.get("grid"), "medium.grid", src))
     voxel = m.get("voxel_size", vol.voxel_size)
     origin = m.get("origin", vol.origin)

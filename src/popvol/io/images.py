@@ -1,4 +1,5 @@
-"""Images: linear HDR as OpenEXR (written and read), display images as PNG (exposure + sRGB).
+"""Images: linear HDR as OpenEXR (written and read), display images as PNG (exposure + sRGB),
+written atomically (io/files.py).
 
 Images are float32 (H, W, 3) linear RGB radiance. Clipping to [0, 1] happens only when a
 display image (PNG) is made; the EXR keeps the linear values.
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PopvolError
+from .files import write_atomically
 
 SUFFIXES = (".png", ".exr")
 
@@ -41,8 +43,9 @@ def write_png(path, rgb, exposure: float = 0.0) -> None:
     from PIL import Image
     path = Path(path)
     rgb = _check(path, rgb)
+    image = Image.fromarray(tonemap(rgb, exposure), "RGB")
     try:
-        Image.fromarray(tonemap(rgb, exposure), "RGB").save(path)
+        write_atomically(path, lambda tmp: image.save(tmp, format="PNG"))
     except OSError as e:
         raise PopvolError(f"{path}: cannot write PNG ({e})") from None
 
@@ -55,7 +58,7 @@ def write_exr(path, rgb) -> None:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     try:
         with OpenEXR.File(header, {"RGB": rgb}) as f:
-            f.write(str(path))
+            write_atomically(path, lambda tmp: f.write(str(tmp)))
     except Exception as e:  # the binding raises plain exceptions
         raise PopvolError(f"{path}: cannot write EXR ({e})") from None
 
