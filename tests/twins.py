@@ -112,6 +112,8 @@ def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, ph
                     wa = Ra[k, i, j] * th * dh
                     tally[ABSORBED] += R[k, i, j] * (1 - th)          # the receiver's half step
                     R[k, i, j] = Ra[k, i, j] = 0.0
+                    if w <= 0.0:                                      # all absorbed
+                        continue
                     if handover > 0 and abs(wa) < handover * diffusive[k, i, j] * w:
                         Q[0, k, i, j] += w
                         Q[1, k, i, j] += wa

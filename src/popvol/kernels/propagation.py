@@ -255,6 +255,8 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
                     R[k, i, j] = 0.0
                     Ra[k, i, j] = 0.0
                     sent += 1
+                    if w <= 0.0:      # all absorbed: Th underflows to 0 where sigma_a h / 2 > ~100
+                        continue
                     if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
                         continue
                     phi[k, i, j] += w * inv_area
