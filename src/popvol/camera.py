@@ -6,9 +6,8 @@ Fields are checked with :mod:`popvol.check` when the camera is made.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,6 +15,11 @@ from . import check
 from .errors import PopvolError
 
 MAX_PIXELS = 8192 * 8192
+#: Longest side of an image, in pixels.
+MAX_SIDE = 65536
+#: |coordinate| of the camera's origin and target, in world units: beyond the medium's limit
+#: (medium.MAX_COORDINATE = 1e12), so that the automatic camera of any medium fits.
+MAX_COORDINATE = 1e14
 
 
 @dataclass
@@ -36,6 +40,13 @@ class Camera:
         self.fov = check.number(self.fov, "camera.fov", src, 0.0, 180.0, open_interval=True)
         self.width = check.integer(self.width, "camera.width", src, 1, math.inf)
         self.height = check.integer(self.height, "camera.height", src, 1, math.inf)
+        for name, side in (("camera.width", self.width), ("camera.height", self.height)):
+            if side > MAX_SIDE:
+                raise PopvolError(f"{src}: {name} = {side} must be at most {MAX_SIDE} pixels")
+        for name, point in (("camera.target", self.target), ("camera.origin", self.origin)):
+            if not np.abs(point).max() <= MAX_COORDINATE:
+                raise PopvolError(f"{src}: {name} = {check._show(point)} must be within +-{MAX_COORDINATE:g} "
+                                  "(world units) on every axis")
         with np.errstate(over="ignore", invalid="ignore"):
             view = self.target - self.origin
             dist, up = np.linalg.norm(view), np.linalg.norm(self.up)

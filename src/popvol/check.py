@@ -19,9 +19,15 @@ import numpy as np
 
 from .errors import PopvolError
 
-__all__ = ["rgb", "vector", "integer", "number", "choice", "known_keys", "table"]
+__all__ = ["rgb", "power", "vector", "integer", "number", "choice", "known_keys", "table", "text",
+           "MAX_POWER"]
 
 _SHOW_MAX = 60        # characters of a bad value quoted in a message
+
+#: Largest irradiance, intensity or radiance (and environment-map scale) accepted. The renderer
+#: multiplies a light's power by fields per unit power, phase functions (up to ~1e14 for g near
+#: 1 in float32) and 1 / r^2 and stores float32 pixels (at most 3.4e38): 1e20 leaves that room.
+MAX_POWER = 1e20
 
 
 def rgb(value, name: str, src: str, lo: float = 0.0, hi: float = math.inf) -> np.ndarray:
@@ -30,6 +36,25 @@ def rgb(value, name: str, src: str, lo: float = 0.0, hi: float = math.inf) -> np
     if xs is None or len(xs) not in (1, 3) or not all(_finite(x) and lo <= x <= hi for x in xs):
         raise _error(src, name, value, f"must be 1 or 3 finite numbers{_range(lo, hi, False, ' ')}")
     return np.array(xs * 3 if len(xs) == 1 else xs, np.float64)
+
+
+def power(value, name: str, src: str, hi: float = MAX_POWER) -> np.ndarray:
+    """:func:`rgb` >= 0 and at most ``hi`` (a light's power, a radiance, a scale): larger values
+    overflow float32 once multiplied by the fields, so they are refused here, by name."""
+    xs = _numbers(value)
+    if xs is None or len(xs) not in (1, 3) or not all(_finite(x) and 0 <= x <= hi for x in xs):
+        raise _error(src, name, value, f"must be 1 or 3 finite numbers >= 0, at most {hi:g}")
+    return np.array(xs * 3 if len(xs) == 1 else xs, np.float64)
+
+
+def text(value, name: str, src: str, max_length: int = 4096) -> str:
+    """A string (a file or grid name) of at most ``max_length`` characters, without control
+    characters (a message quoting it must stay one line)."""
+    if not isinstance(value, str):
+        raise _error(src, name, value, "must be a string")
+    if len(value) > max_length or not value.isprintable():
+        raise _error(src, name, value, f"must be a string of at most {max_length} printable characters")
+    return value
 
 
 def vector(value, name: str, src: str, nonzero: bool = False, positive: bool = False) -> np.ndarray:
@@ -76,7 +101,8 @@ def known_keys(table: dict, known, prefix: str, src: str) -> None:
     known = set(known)
     for k in table:
         if k not in known:
-            raise PopvolError(f"{src}: unknown key {prefix}{_show(k) if not isinstance(k, str) else k} "
+            shown = k if isinstance(k, str) and len(k) <= _SHOW_MAX and k.isprintable() else _show(k)
+            raise PopvolError(f"{src}: unknown key {prefix}{shown} "
                               f"(known: {', '.join(sorted(known))})")
 
 
@@ -114,15 +140,20 @@ def _finite(x: float) -> bool:
     return math.isfinite(x)
 
 
+_MAX_NUMBERS = 16     # the longest list of numbers any field takes is 3
+
+
 def _numbers(value) -> list[float] | None:
     """A flat list of floats from a number, a list/tuple of numbers or a 0-/1-D numeric array;
     None for anything else (strings, None, nested lists, dicts, bools)."""
     if _is_real(value):
         return [_as_float(value)]
     if isinstance(value, np.ndarray):
-        if value.ndim > 1 or value.dtype.kind not in "iuf":
+        if value.ndim > 1 or value.dtype.kind not in "iuf" or value.size > _MAX_NUMBERS:
             return None
         value = value.reshape(-1).tolist()
+    if isinstance(value, (list, tuple)) and len(value) > _MAX_NUMBERS:
+        return None                    # no validator takes more; a 10-million-number list is refused at once
     if isinstance(value, (list, tuple)) and all(_is_real(x) for x in value):
         return [_as_float(x) for x in value]
     return None

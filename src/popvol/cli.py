@@ -73,6 +73,8 @@ def render(scene, output, exr, width, height, stats, **knobs):
     t0 = time.perf_counter()
     sc = load_scene(scene, width=width, height=height, **_method_overrides("render", knobs))
     _check_outputs(outputs, sc.files)
+    from .domains import check_image_memory
+    check_image_memory(sc.camera.width, sc.camera.height, f"{sc.source}: camera.width x camera.height")
     t_load = time.perf_counter() - t0
     tol = sc.method.tolerance
     with _progress() as bar:
@@ -106,7 +108,10 @@ def render(scene, output, exr, width, height, stats, **knobs):
     if stats:
         doc = {"scene": sc.source, "image": str(output), "width": sc.camera.width, "height": sc.camera.height,
                "method": vars(sc.method), "seconds": seconds, "domains": info["domains"]}
-        write_text_atomically(stats, json.dumps(_json_safe(doc), indent=2, allow_nan=False))
+        try:
+            write_text_atomically(stats, json.dumps(_json_safe(doc), indent=2, allow_nan=False))
+        except OSError as e:
+            raise PopvolError(f"--stats {stats}: cannot write ({e.strerror or e})") from None
     its = ", ".join(str(d["iterations"]) for d in info["domains"])
     solvers = "/".join(sorted({d["solver"] for d in info["domains"]}))
     click.echo(f"{output}: {sc.camera.width}x{sc.camera.height} in {seconds['total']:.2f} s "
@@ -286,6 +291,12 @@ def _check_writable(path: str, option: str) -> None:
         raise PopvolError(f"{option} {path}: folder {parent} does not exist")
     if Path(path).is_dir():
         raise PopvolError(f"{option} {path}: is a folder, not a file")
+    try:                                  # the outputs are written through a file beside them
+        import tempfile
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as e:
+        raise PopvolError(f"{option} {path}: cannot write in folder {parent} ({e.strerror or e})") from None
 
 
 def _check_outputs(outputs: dict, inputs) -> None:

@@ -26,6 +26,15 @@ from .medium import Medium
 #: halos). sigma_t, sigma_s and g exist while Th and Dh are computed. Sized for Jacobi.
 BYTES_PER_DOMAIN_CELL = 4 * 14
 
+#: Peak bytes per image pixel while an image is rendered and written: the float32 image and
+#: the float64 temporaries of tone mapping it for the PNG (io/images.py).
+BYTES_PER_PIXEL = 160
+
+
+def check_image_memory(width: int, height: int, field: str) -> None:
+    """Refuse, before any work, an image of width x height pixels that would not fit in memory."""
+    check_memory(int(width) * int(height) * BYTES_PER_PIXEL, field, f"a {width}x{height} image")
+
 
 def light_frame(direction: np.ndarray) -> np.ndarray:
     """float64 (3, 3), rows d, u, v: orthonormal, right-handed (v = d x u), d = direction."""

@@ -23,8 +23,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .check import MAX_POWER
 from .errors import PopvolError
 from .lights import DirectionalLight
+
+#: Largest radiance (texel times scale, or a sky's colour) accepted: the lights a map becomes
+#: carry up to 4 pi times it as irradiance, which must stay within check.MAX_POWER.
+MAX_RADIANCE = MAX_POWER / 16
 
 # Rec. 709 luminance weights of linear RGB (metrics.luminance uses them too)
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -44,6 +49,9 @@ class EnvMap:
                               "is twice as wide as it is high")
         if not np.all(np.isfinite(r)) or r.min() < 0:
             raise PopvolError(f"{self.source}: environment map has NaN, infinite or negative texels")
+        if r.max() > MAX_RADIANCE:
+            raise PopvolError(f"{self.source}: environment map has radiance up to {float(r.max()):.3g}, more "
+                              f"than {MAX_RADIANCE:g}")
         self.radiance = np.ascontiguousarray(r)
 
 
@@ -75,9 +83,9 @@ def sky(zenith, horizon, ground=(0.0, 0.0, 0.0), height: int = 64, source: str =
     return EnvMap(rad.astype(np.float32), source)
 
 
-def load(path, scale=1.0) -> EnvMap:
+def load(path, scale=1.0, field: str = "scale") -> EnvMap:
     """A lat-long map from OpenEXR (.exr) or Radiance RGBE (.hdr, through OpenCV, the
-    ``hdr`` extra), times ``scale`` (1 or 3 numbers)."""
+    ``hdr`` extra), times ``scale`` (1 or 3 numbers; ``field`` names it in messages)."""
     from pathlib import Path
     from .io.images import read_exr
     path = Path(path)
@@ -91,7 +99,14 @@ def load(path, scale=1.0) -> EnvMap:
     else:
         raise PopvolError(f"{path}: popvol reads environment maps as OpenEXR (.exr) or Radiance "
                           f"(.hdr); convert {path.suffix or 'it'} to one of them")
-    return EnvMap(rad.astype(np.float32) * np.asarray(scale, np.float32), str(path))
+    rad = np.asarray(rad, np.float32)
+    if rad.ndim == 3 and rad.shape[-1] == 3 and rad.size and np.all(np.isfinite(rad)) and rad.min() >= 0:
+        scale = np.broadcast_to(np.asarray(scale, np.float64), (3,))
+        peak = (rad.reshape(-1, 3).max(axis=0).astype(np.float64) * scale).max()
+        if not peak <= MAX_RADIANCE:               # the product would overflow or be refused
+            raise PopvolError(f"{field} = {scale.tolist()} makes the radiance of {path} reach {peak:.3g}, more "
+                              f"than {MAX_RADIANCE:g}; lower it")
+    return EnvMap(rad * np.asarray(scale, np.float32), str(path))
 
 
 def _read_hdr(path) -> np.ndarray:

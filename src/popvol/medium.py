@@ -27,6 +27,20 @@ from .errors import PopvolError
 #: per light). Used for memory estimates before allocating.
 BYTES_PER_WORLD_VOXEL = 4 * 3
 
+# Limits that keep every product downstream finite and meaningful in float64 geometry and
+# float32 fields (docs/SCENE.md, "Limits"):
+#: |coordinate| of every point of the medium's box, in world units.
+MAX_COORDINATE = 1e12
+#: Smallest voxel, relative to max(1, the largest |coordinate| of the box): finer voxels are
+#: lost in the rounding of float64 world positions.
+MIN_RELATIVE_VOXEL = 1e-9
+#: Largest medium.scale (it is stored in float32 beside the density).
+MAX_SCALE = 1e30
+#: Largest optical depth scale * max density * diagonal of the box: far beyond any cloud (a
+#: thunderhead is ~1e4); denser media are opaque and their products overflow.
+MAX_OPTICAL_DEPTH = 1e7
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 
 @dataclass
 class Medium:
@@ -58,6 +72,7 @@ class Medium:
         d = np.asarray(self.density)
         if d.ndim != 3 or min(d.shape) < 1:
             raise PopvolError(f"{self.source}: density must be a 3-D array with every size >= 1, got shape {d.shape}")
+        check_float32_range(d, self.source, "density")
         d = np.ascontiguousarray(d, dtype=np.float32)
         bad = ~np.isfinite(d)
         if bad.any():
@@ -74,7 +89,8 @@ class Medium:
         else:
             self.voxel_size = check.vector(self.voxel_size, f"{f}.voxel_size", src, positive=True)
         self.origin = check.vector(self.origin, f"{f}.origin", src)
-        self.scale = check.rgb(self.scale, f"{f}.scale", src)
+        check_box(self.voxel_size, self.origin, d.shape, f"{f}.voxel_size", f"{f}.origin", src)
+        self.scale = check.power(self.scale, f"{f}.scale", src, MAX_SCALE)
         if _is_grid(self.albedo):
             self.albedo = _grid(self.albedo, d.shape, f"{f}.albedo", src, 0.0, 1.0, False)
         else:
@@ -83,6 +99,11 @@ class Medium:
             self.g = _grid(self.g, d.shape, f"{f}.g", src, -1.0, 1.0, True)
         else:
             self.g = check.number(self.g, f"{f}.g", src, -1.0, 1.0, open_interval=True)
+        tau = self.max_optical_depth()
+        if not tau <= MAX_OPTICAL_DEPTH:
+            raise PopvolError(f"{src}: {f}.scale = {_fmt3(self.scale)} gives an optical depth (scale x max density "
+                              f"{float(d.max()):.3g} x diagonal {self.diagonal:.3g}) of {tau:.3g}, more than "
+                              f"{MAX_OPTICAL_DEPTH:g}; lower {f}.scale (or the density, or the size of the medium)")
 
     # -- geometry -------------------------------------------------------------------------
     @property
@@ -126,10 +147,56 @@ class Medium:
     def g_min(self) -> float:
         return float(np.min(self.g))
 
-    def max_optical_depth(self) -> float:
-        """Largest sigma_t times the longest side: a rough scale of how dense the medium is."""
+    @property
+    def diagonal(self) -> float:
+        """Length of the diagonal of the medium's box (world units)."""
         lo, hi = self.bounds
-        return float(self.scale.max() * self.density.max() * np.max(hi - lo))
+        return float(np.linalg.norm(hi - lo))
+
+    def max_optical_depth(self) -> float:
+        """Largest sigma_t times the box's diagonal: a bound on the optical depth of any path
+        (checked against MAX_OPTICAL_DEPTH when the medium is made)."""
+        with np.errstate(over="ignore"):
+            return float(self.scale.max() * float(self.density.max()) * self.diagonal)
+
+
+def check_float32_range(values: np.ndarray, source: str, field: str) -> None:
+    """Refuse finite values beyond float32's range (they would become inf when stored)."""
+    if values.dtype.kind == "f" and values.dtype.itemsize > 4 and values.size:
+        with np.errstate(invalid="ignore"):
+            big = np.abs(values) > _FLOAT32_MAX
+        if big.any():
+            first = tuple(int(v) for v in np.argwhere(big)[0])
+            raise PopvolError(f"{source}: {field} has {int(big.sum())} values beyond float32's range "
+                              f"(+-{_FLOAT32_MAX:.3g}; first at {first}: {float(values[first]):.3g}); divide "
+                              "the grid by a constant and multiply medium.scale by it")
+
+
+def check_box(voxel_size: np.ndarray, origin: np.ndarray, shape, voxel_field: str, origin_field: str,
+              source: str) -> None:
+    """Refuse a voxel size and origin whose box leaves [-MAX_COORDINATE, MAX_COORDINATE] or
+    whose voxels are too fine for float64 world positions there (MIN_RELATIVE_VOXEL)."""
+    v, o = np.asarray(voxel_size, np.float64), np.asarray(origin, np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        lo = o - 0.5 * v
+        hi = o + (np.asarray(shape, np.float64) - 0.5) * v
+        reach = float(np.max(np.abs(np.concatenate([lo, hi]))))
+    if not np.all(np.abs(o) <= MAX_COORDINATE):
+        raise PopvolError(f"{source}: {origin_field} = {_fmt3(o)} must be within +-{MAX_COORDINATE:g} "
+                          "(world units) on every axis")
+    if not reach <= MAX_COORDINATE:
+        raise PopvolError(f"{source}: {origin_field} = {_fmt3(o)} and {voxel_field} = {_fmt3(v)} put the medium's "
+                          f"box of {'x'.join(map(str, shape))} voxels at up to {reach:.3g}, beyond "
+                          f"+-{MAX_COORDINATE:g} (world units) on some axis")
+    least = MIN_RELATIVE_VOXEL * max(1.0, reach)
+    if not v.min() >= least:
+        raise PopvolError(f"{source}: {voxel_field} = {_fmt3(v)} must be at least {least:.3g} (world units; "
+                          f"{MIN_RELATIVE_VOXEL:g} x max(1, the largest |coordinate| of the medium's box))")
+
+
+def _fmt3(v) -> str:
+    v = np.asarray(v, np.float64).ravel()
+    return f"{v[0]:g}" if np.all(v == v[0]) else "[" + ", ".join(f"{x:g}" for x in v) + "]"
 
 
 def _is_grid(value) -> bool:

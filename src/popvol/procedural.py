@@ -9,6 +9,14 @@ import numpy as np
 
 from .medium import Medium
 
+#: Peak bytes per voxel while a cloud is generated (coordinates, puffs, noise: measured ~40).
+BYTES_PER_VOXEL = 48
+
+
+def cloud_shape(resolution: int) -> tuple[int, int, int]:
+    """The grid shape of :func:`cloud_density` at ``resolution``."""
+    return resolution, resolution // 2 + resolution // 4, resolution
+
 
 def _value_noise(shape: tuple[int, int, int], cells: int, rng: np.random.Generator) -> np.ndarray:
     """Smooth value noise in [0, 1], float32 ``shape``, with ``cells`` lattice cells per axis."""
@@ -32,7 +40,7 @@ def _value_noise(shape: tuple[int, int, int], cells: int, rng: np.random.Generat
 
 def cloud_density(resolution: int = 96, seed: int = 7) -> np.ndarray:
     """Density in [0, 1] of a cumulus cloud, float32 (n, n//2 + n//4, n) indexed x, y, z."""
-    nx, ny, nz = resolution, resolution // 2 + resolution // 4, resolution
+    nx, ny, nz = cloud_shape(resolution)
     rng = np.random.default_rng(seed)
     x = (np.arange(nx, dtype=np.float32) + 0.5) / nx * 2 - 1          # [-1, 1]
     y = (np.arange(ny, dtype=np.float32) + 0.5) / nx * 2 - 0.25       # same units as x
@@ -61,12 +69,22 @@ def cloud_density(resolution: int = 96, seed: int = 7) -> np.ndarray:
     return density
 
 
+#: The demo cloud's optics (docs/SCENE.md: the procedural medium's defaults).
+DEMO_OPTICS = {"scale": 12.0, "albedo": 0.99, "g": 0.85}
+
+
 def demo_medium(resolution: int = 96, seed: int = 7, extent: float = 2.0,
-                scale: float = 12.0, albedo: float = 0.99, g: float = 0.85) -> Medium:
+                scale: float = 12.0, albedo: float = 0.99, g: float = 0.85, field: str | None = None) -> Medium:
     """The demo cloud as a :class:`Medium` of width ``extent`` world units centred at x = z = 0.
 
     With the defaults the cloud's core has sigma_t = 12 per unit, an optical depth of ~10 across.
+    Refused with a PopvolError naming ``field`` (default: "resolution = N") if generating it
+    would not fit in the memory available.
     """
+    from .domains import check_memory
+    shape = cloud_shape(resolution)
+    check_memory(int(np.prod(shape, dtype=np.int64)) * BYTES_PER_VOXEL, field or f"resolution = {resolution}",
+                 f"a procedural cloud of {shape[0]}x{shape[1]}x{shape[2]} voxels")
     density = cloud_density(resolution, seed)
     voxel = extent / resolution
     n = np.asarray(density.shape)

@@ -18,7 +18,7 @@ from . import check
 from .camera import Camera
 from .errors import PopvolError
 from .lights import LIGHTS, Light
-from .medium import Medium
+from .medium import Medium, check_box
 from .method import KNOB, Method, method_from_tables
 
 __all__ = ["Scene", "Method", "load_scene", "apply_overrides", "scene_from_dict", "auto_camera",
@@ -126,7 +126,7 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
     if environment is not None and "radiance" in bg:
         raise PopvolError(f"{source}: background.radiance is given, but the background of a scene with "
                           "an environment light is the environment map itself; remove it")
-    background = check.rgb(bg.get("radiance", 0.0), "background.radiance", source)
+    background = check.power(bg.get("radiance", 0.0), "background.radiance", source)
 
     method = method_from_tables(data.get("method", {}), data.get("experimental", {}), source)
     camera = _camera(data.get("camera"), medium, source)
@@ -156,16 +156,22 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
         if isinstance(optics.get(key), dict):
             optics[key] = _optics_grid(optics[key], key, m, src, base)
     if kind == "procedural":
-        from .procedural import demo_medium
+        from .procedural import DEMO_OPTICS, demo_medium
         unused = sorted({"file", "grid", "voxel_size", "origin"} & set(m))
         if unused:
             raise PopvolError(f"{src}: medium.{unused[0]} applies to a medium read from a file, not to "
                               "medium.type = 'procedural' (whose size is medium.extent)")
         res = check.integer(m.get("resolution", 96), "medium.resolution", src, 8, 1024)
         seed = check.integer(m.get("seed", 7), "medium.seed", src, 0, 2**32 - 1)
+        # voxels of at least medium.MIN_RELATIVE_VOXEL at the finest resolution, a box within
+        # medium.MAX_COORDINATE
         extent = check.number(m.get("extent", 2.0), "medium.extent", src, 0.0, 1e12, open_interval=True)
-        med = demo_medium(res, seed, extent)
-        return Medium(med.density, med.voxel_size, med.origin, source=src, **_optics(med, optics))
+        if extent < 1e-5:
+            raise PopvolError(f"{src}: medium.extent = {extent:g} must be at least 1e-05 (world units; finer "
+                              "voxels are lost in the rounding of world positions)")
+        # scale 0 here: the optics, defaults included, are checked below against the scene's name
+        med = demo_medium(res, seed, extent, scale=0.0, field=f"{src}: medium.resolution = {res}")
+        return Medium(med.density, med.voxel_size, med.origin, source=src, **{**DEMO_OPTICS, **optics})
     from .io.volumes import read_volume
     if "file" not in m:
         raise PopvolError(f"{src}: medium.type = 'file' needs medium.file")
@@ -176,6 +182,12 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
     vol = read_volume(_path(m["file"], "medium.file", src, base), _text(m.get("grid"), "medium.grid", src))
     voxel = m.get("voxel_size", vol.voxel_size)
     origin = m.get("origin", vol.origin)
+    if "voxel_size" not in m or "origin" not in m:     # a value from the file: name the file
+        vs = voxel if not check._is_scalar(voxel) else [voxel] * 3
+        vs = check.vector(vs, "medium.voxel_size", src, positive=True)
+        check_box(vs, check.vector(origin, "medium.origin", src), vol.density.shape,
+                  "medium.voxel_size" if "voxel_size" in m else f"the voxel size of {vol.source}",
+                  "medium.origin" if "origin" in m else f"the origin of {vol.source}", src)
     return Medium(vol.density, voxel, origin, source=src, **_optics(None, optics))
 
 
@@ -215,11 +227,12 @@ def _light(l, name: str, src: str, base: Path = Path(".")):
         if "file" not in l:
             raise PopvolError(f"{src}: {name}.file is required (an OpenEXR lat-long map)")
         env = envmap.load(_path(l["file"], f"{name}.file", src, base),
-                          check.rgb(l.get("scale", 1.0), f"{name}.scale", src))
+                          check.power(l.get("scale", 1.0), f"{name}.scale", src, envmap.MAX_RADIANCE),
+                          field=f"{src}: {name}.scale")
     else:
-        env = envmap.sky(check.rgb(l.get("zenith", [0.2, 0.35, 0.8]), f"{name}.zenith", src),
-                         check.rgb(l.get("horizon", [0.6, 0.7, 0.9]), f"{name}.horizon", src),
-                         check.rgb(l.get("ground", 0.0), f"{name}.ground", src), source=f"{src}: {name}")
+        rad = lambda key, default: check.power(l.get(key, default), f"{name}.{key}", src, envmap.MAX_RADIANCE)
+        env = envmap.sky(rad("zenith", [0.2, 0.35, 0.8]), rad("horizon", [0.6, 0.7, 0.9]), rad("ground", 0.0),
+                         source=f"{src}: {name}")
     return [env, envmap.decompose(env, k)]
 
 
@@ -246,15 +259,13 @@ def auto_camera(medium: Medium, width: int = 640, height: int = 360, fov: float 
 
 
 def _text(value, name: str, src: str) -> str | None:
-    """A string (a file or grid name), or None when not given."""
-    if value is not None and not isinstance(value, str):
-        raise PopvolError(f"{src}: {name} = {value!r:.60} must be a string")
-    return value
+    """A string (a file or grid name) of printable characters, or None when not given."""
+    return None if value is None else check.text(value, name, src)
 
 
 def _path(value, name: str, src: str, base: Path) -> Path:
     """A file name, relative to the scene file's folder ``base`` unless absolute."""
-    p = Path(_text(value, name, src))
+    p = Path(check.text(value, name, src))
     return p if p.is_absolute() else base / p
 
 

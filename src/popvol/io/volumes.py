@@ -31,11 +31,19 @@ class VolumeData:
 def validate_density(density, source: str, field: str = "density", signed: bool = False) -> np.ndarray:
     """The density checks every reader shares; returns float32, C-contiguous. ``signed`` grids
     (e.g. a per-voxel g) may be negative."""
+    from ..medium import check_float32_range
     d = np.asarray(density)
     if d.ndim != 3 or min(d.shape) < 1:
         raise PopvolError(f"{source}: {field} must be a 3-D array with every size >= 1, got shape {d.shape}")
     if not (np.issubdtype(d.dtype, np.floating) or np.issubdtype(d.dtype, np.integer)):
         raise PopvolError(f"{source}: {field} has dtype {d.dtype}; it must be numeric")
+    if np.issubdtype(d.dtype, np.floating):
+        with np.errstate(invalid="ignore"):
+            bad = ~np.isfinite(d)
+        if bad.any():
+            first = tuple(int(v) for v in np.argwhere(bad)[0])
+            raise PopvolError(f"{source}: {field} has {int(bad.sum())} NaN/inf voxels (first at {first}); it must be finite")
+        check_float32_range(d, source, field)
     d = np.ascontiguousarray(d, np.float32)
     bad = ~np.isfinite(d)
     if bad.any():
@@ -66,10 +74,13 @@ def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
         with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
             if key not in z.files:
                 raise PopvolError(f"{path}: no array named {key!r}; arrays in the file: {', '.join(z.files) or '(none)'}")
+            _check_npz_member(z, key, path)
             density = z[key]
             voxel = z["voxel_size"] if "voxel_size" in z.files else None
             origin = z["world_of_ijk_min"] if "world_of_ijk_min" in z.files else None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
+    except PopvolError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as e:
         raise PopvolError(f"{path}: cannot read as .npz ({e})") from None
     except (TypeError, AttributeError):     # np.load gave a plain array: .npy content
         raise PopvolError(f"{path}: holds a single .npy array, not an .npz archive; save it with "
@@ -79,6 +90,35 @@ def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
         raise PopvolError(f"{path}: voxel_size = {voxel.tolist()} must be > 0")
     return VolumeData(validate_density(density, str(path), key, signed), voxel,
                       _vec3(origin, str(path), "world_of_ijk_min", 0.0), str(path))
+
+
+#: Bytes per voxel of a grid while it is read and checked: the file's array, its float32 copy
+#: and the masks of the checks (beside the array's own itemsize).
+BYTES_PER_READ_VOXEL = 4 + 2
+
+
+def _check_npz_member(z, key: str, path: Path) -> None:
+    """Before reading array ``key`` of an open .npz: its header must be an array's, describe no
+    more data than the archive holds, and fit in memory (a forged header can declare 10^15
+    voxels in a few bytes)."""
+    from ..domains import check_memory
+    name = key if key in z.zip.namelist() else key + ".npy"
+    info = z.zip.getinfo(name)
+    with z.zip.open(name) as member:
+        version = np.lib.format.read_magic(member)
+        read = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                else np.lib.format.read_array_header_2_0)
+        shape, _, dtype = read(member)
+    if dtype.hasobject or dtype.itemsize == 0:
+        raise PopvolError(f"{path}: array {key!r} has dtype {dtype}; it must be numeric")
+    count = 1
+    for n in shape:
+        count *= int(n)
+    if count * dtype.itemsize > info.file_size:
+        raise PopvolError(f"{path}: array {key!r} declares shape {tuple(shape)} ({count * dtype.itemsize} bytes) "
+                          f"but the archive holds {info.file_size} bytes for it; the file is corrupt")
+    check_memory(count * (dtype.itemsize + BYTES_PER_READ_VOXEL), f"{path}: array {key!r}",
+                 f"reading {'x'.join(map(str, shape))} voxels")
 
 
 def read_vol(path, signed: bool = False) -> VolumeData:

@@ -50,14 +50,14 @@ class PointLight(Light):
 
     def __post_init__(self):
         self.position = check.vector(self.position, "position", self.source)
-        self.intensity = check.rgb(self.intensity, "intensity", self.source)
+        self.intensity = check.power(self.intensity, "intensity", self.source)
 
     @classmethod
     def from_table(cls, t: dict, name: str, src: str) -> "PointLight":
         if "position" not in t:
             raise PopvolError(f"{src}: {name}.position is required (the light's world position)")
         return cls(check.vector(t["position"], f"{name}.position", src),
-                   check.rgb(t.get("intensity", 1.0), f"{name}.intensity", src), source=f"{src}: {name}")
+                   check.power(t.get("intensity", 1.0), f"{name}.intensity", src), source=f"{src}: {name}")
 
     @property
     def power(self) -> np.ndarray:

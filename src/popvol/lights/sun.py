@@ -43,12 +43,13 @@ class DirectionalLight(Light):
 
     def __post_init__(self):
         d = check.vector(self.direction, "direction", self.source, nonzero=True)
-        norm = np.linalg.norm(d)
+        with np.errstate(over="ignore"):              # e.g. [1e308, 1e308, 0]: rescaled below
+            norm = np.linalg.norm(d)
         if not np.isfinite(norm):
             d = d / np.abs(d).max()
             norm = np.linalg.norm(d)
         self.direction = d / norm
-        self.irradiance = check.rgb(self.irradiance, "irradiance", self.source)
+        self.irradiance = check.power(self.irradiance, "irradiance", self.source)
         self.a0 = check.number(self.a0, "a0", self.source, 0.0, 1.0)
 
     @classmethod
@@ -56,7 +57,7 @@ class DirectionalLight(Light):
         if "direction" not in t:
             raise PopvolError(f"{src}: {name}.direction is required (the direction the light travels)")
         return cls(check.vector(t["direction"], f"{name}.direction", src, nonzero=True),
-                   check.rgb(t.get("irradiance", 1.0), f"{name}.irradiance", src),
+                   check.power(t.get("irradiance", 1.0), f"{name}.irradiance", src),
                    check.number(t.get("a0", 1.0), f"{name}.a0", src, 0.0, 1.0), source=f"{src}: {name}")
 
     @property

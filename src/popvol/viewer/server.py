@@ -84,6 +84,10 @@ class Session:
         except PopvolError as e:
             await self.send_error(str(e))
             return
+        except Exception as e:          # a bug: answer, log it, keep the websocket open
+            log.exception("checking a message failed")
+            await self.send_error(f"internal error while checking the message ({type(e).__name__}); please report it")
+            return
         if m.kind == "save":
             self.save_wanted = self.settings
         else:

@@ -99,8 +99,10 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_
         raise PopvolError("messages must be JSON text, got binary data")
     try:
         msg = json.loads(text, parse_constant=_no_constant)
-    except ValueError as e:
-        raise PopvolError(f"message is not valid JSON ({e})") from None
+    except RecursionError:
+        raise PopvolError("message is nested too deeply") from None
+    except ValueError as e:          # invalid JSON, or an integer of more than 4300 digits
+        raise PopvolError(f"message is not valid JSON ({_one_line(e)})") from None
     if not isinstance(msg, dict):
         raise PopvolError(f"message must be a JSON object, got {type(msg).__name__}")
     kind = msg.get("type")
@@ -108,7 +110,7 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_
         _only_keys(msg, {"type"}, "save message")
         return Message("save", {})
     if kind != "set":
-        raise PopvolError(f"message type {kind!r} is unknown (known: 'set', 'save')")
+        raise PopvolError(f"message type {check._show(kind)} is unknown (known: 'set', 'save')")
     _only_keys(msg, {"type", "settings"}, "set message")
     changes = msg.get("settings")
     if not isinstance(changes, dict) or not changes:
@@ -116,9 +118,9 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_
     out = {}
     for name, value in changes.items():
         if name not in RANGES:
-            raise PopvolError(f"unknown setting {name!r} (known: {', '.join(RANGES)})")
+            raise PopvolError(f"unknown setting {check._show(name)} (known: {', '.join(RANGES)})")
         if name.startswith("sun_") and not has_sun:
-            raise PopvolError(f"setting {name!r}: this scene has no directional light to move")
+            raise PopvolError(f"setting {check._show(name)}: this scene has no directional light to move")
         if name == "intensity" and not has_key:
             raise PopvolError("setting 'intensity': this scene has no sun or point light (only an environment)")
         lo, hi, open_ = RANGES[name]
@@ -128,6 +130,11 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_
     return Message("set", out)
 
 
+def _one_line(e: Exception, limit: int = 200) -> str:
+    text = " ".join(str(e).split())
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
 def _no_constant(name):
     raise ValueError(f"{name} is not a number JSON allows")
 
@@ -135,7 +142,8 @@ def _no_constant(name):
 def _only_keys(msg: dict, known: set, what: str):
     extra = sorted(set(msg) - known)
     if extra:
-        raise PopvolError(f"{what} has unknown key(s) {', '.join(map(repr, extra))}")
+        shown = ", ".join(map(check._show, extra[:5])) + (f" and {len(extra) - 5} more" if len(extra) > 5 else "")
+        raise PopvolError(f"{what} has unknown key(s) {shown}")
 
 
 # ---------------------------------------------------------------------------------------------

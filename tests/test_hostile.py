@@ -1,0 +1,353 @@
+"""Every bad input is answered with one PopvolError line (the CLI: exit 2, one stderr line, no
+traceback): the values a new user tried that once gave tracebacks, NaN images or misleading
+messages, and property-based tests (hypothesis) driving the scene loader with arbitrary values."""
+import copy
+import io
+import math
+import warnings
+import zipfile
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+import pytest
+
+hypothesis = pytest.importorskip("hypothesis", reason="pip install hypothesis (the test extra)")
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+import popvol
+from popvol import PopvolError, load_scene, scene_from_dict
+from popvol.cli import main
+
+MAX_MESSAGE = 1000        # characters: an error is one short line, whatever the input's size
+
+TINY = {"medium": {"type": "procedural", "resolution": 8},
+        "lights": [{"type": "directional", "direction": [0.0, -1.0, 0.0]}],
+        "camera": {"width": 16, "height": 9}, "method": {"resolution": 8}}
+
+
+def one_line(message: str) -> str:
+    assert "\n" not in message and "\r" not in message, message[:300]
+    assert len(message) <= MAX_MESSAGE, message[:300]
+    assert "Traceback" not in message
+    return message
+
+
+def refused(data, *words, base_dir="."):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                 # no raw NumPy RuntimeWarnings either
+        with pytest.raises(PopvolError) as e:
+            scene_from_dict(data, "s.toml", base_dir)
+    msg = one_line(str(e.value))
+    for w in words:
+        assert w in msg, msg
+    return msg
+
+
+def with_(path, value, base=TINY):
+    data = copy.deepcopy(base)
+    table = data
+    for key in path[:-1]:
+        table = table[key]
+    table[path[-1]] = value
+    return data
+
+
+@pytest.fixture
+def blob(tmp_path):
+    path = tmp_path / "blob.npz"
+    np.savez(path, density=np.ones((4, 4, 4), np.float32))
+    return path
+
+
+def file_scene(path, **medium):
+    return with_(["medium"], {"type": "file", "file": str(path), **medium})
+
+
+def run(args, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in args])
+    err = capsys.readouterr().err
+    return e.value.code, err
+
+
+def cli_refuses(capsys, args, *words):
+    code, err = run(args, capsys)
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err[:2000]
+    one_line(lines[0])
+    assert lines[0].startswith("popvol: error: ")
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def no_solve(monkeypatch):
+    monkeypatch.setattr(popvol, "solve", lambda *a, **k: pytest.fail("solved before refusing"))
+
+
+def toml_scene(tmp_path, text, name="s.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+# -- values whose products overflow downstream ---------------------------------------------------
+
+def test_huge_direction_is_normalised_without_warnings():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene = scene_from_dict(with_(["lights", 0, "direction"], [1e308, 1e308, 0]))
+    assert np.allclose(scene.lights[0].direction, [2 ** -0.5, 2 ** -0.5, 0])
+
+
+@pytest.mark.parametrize("path,value,words", [
+    (["camera", "up"], [1e308] * 3, ["camera.up"]),
+    (["medium", "extent"], 1e13, ["medium.extent"]),
+    (["medium", "extent"], 1e-6, ["medium.extent", "at least"]),
+    (["medium", "extent"], 1e-300, ["medium.extent"]),
+    (["medium", "scale"], 1e308, ["medium.scale", "at most 1e+30"]),
+    (["medium", "scale"], 1e9, ["medium.scale", "optical depth", "1e+07"]),
+    (["medium", "extent"], 9e11, ["medium.scale", "optical depth"]),
+    (["lights", 0, "irradiance"], 1e308, ["lights[0].irradiance", "at most 1e+20"]),
+    (["lights", 0, "irradiance"], [1, 1, 1e21], ["lights[0].irradiance", ">= 0"]),
+    (["lights"], [{"type": "point", "position": [0, 0.5, 0], "intensity": 1e300}], ["lights[0].intensity"]),
+    (["lights"], [{"type": "sky", "zenith": 1e300}], ["lights[0].zenith", "at most"]),
+    (["background"], {"radiance": 1e300}, ["background.radiance", "at most"]),
+    (["camera", "origin"], [1e300, 0, 0], ["camera.origin", "1e+14"]),
+    (["camera", "target"], [0, -1e300, 0], ["camera.target", "1e+14"]),
+    (["camera", "width"], 10**6, ["camera.width", "65536"]),
+])
+def test_values_that_overflow_are_refused_by_name(path, value, words):
+    msg = refused(with_(path, value), *words)
+    assert msg.startswith("s.toml: ")
+
+
+@pytest.mark.parametrize("medium,words", [
+    ({"origin": [1e300, 0, 0]}, ["medium.origin", "1e+12"]),
+    ({"origin": [1e12, 0, 0]}, ["medium.origin", "voxel size", "beyond"]),
+    ({"voxel_size": 1e300}, ["medium.voxel_size", "1e+12"]),
+    ({"voxel_size": 1e-300}, ["medium.voxel_size", "at least"]),
+    ({"voxel_size": 1e-6, "origin": [1e9, 0, 0]}, ["medium.voxel_size", "at least"]),
+])
+def test_medium_geometry_out_of_range_names_the_field(blob, medium, words):
+    msg = refused(file_scene(blob, **medium), *words)
+    assert "camera" not in msg             # never a field the user did not set
+
+
+def test_geometry_read_from_the_file_names_the_file(tmp_path):
+    path = tmp_path / "tiny_voxels.npz"
+    np.savez(path, density=np.ones((4, 4, 4), np.float32), voxel_size=np.array([1e-300]))
+    refused(file_scene(path), "voxel size of", "tiny_voxels.npz", "at least")
+    scene_from_dict(file_scene(path, voxel_size=0.1))          # the scene may correct it
+
+
+def test_far_but_allowed_media_render_finite_images(tmp_path):
+    """The limits are about float precision, not taste: a medium near them still renders."""
+    path = tmp_path / "b.npz"
+    np.savez(path, density=np.ones((4, 4, 4), np.float32))
+    for medium in ({"voxel_size": 1e3, "scale": 1e-3, "origin": [0.99e12] * 3},
+                   {"voxel_size": 1e-9, "scale": 1e9}):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            scene = scene_from_dict(with_(["camera"], {"width": 8, "height": 6}, file_scene(path, **medium)))
+            image = popvol.render(scene, popvol.solve(scene))
+        assert np.all(np.isfinite(image)) and image.max() > 0
+
+
+def test_densities_beyond_float32_are_not_called_nan(tmp_path):
+    path = tmp_path / "dense.npz"
+    np.savez(path, density=np.full((3, 3, 3), 1e300))
+    msg = refused(file_scene(path), "float32", "dense.npz")
+    assert "NaN" not in msg and "inf voxels" not in msg
+    np.savez(path, density=np.full((3, 3, 3), 1e30))
+    refused(file_scene(path), "optical depth", "medium.scale")
+
+
+def test_envmap_scale_that_overflows_is_refused(tmp_path):
+    from popvol.io.images import write_exr
+    path = tmp_path / "sky.exr"
+    write_exr(path, np.full((4, 8, 3), 100.0, np.float32))
+    light = {"type": "envmap", "file": str(path), "lights": 2}
+    refused(with_(["lights"], [{**light, "scale": 1e300}]), "lights[0].scale", "at most")
+    msg = refused(with_(["lights"], [{**light, "scale": 1e18}]), "lights[0].scale", "sky.exr")
+    assert "NaN" not in msg
+
+
+# -- wrong types: one line, never a traceback ----------------------------------------------------
+
+@pytest.mark.parametrize("path,value,words", [
+    (["medium"], {"type": "file", "file": 123}, ["medium.file", "string"]),
+    (["lights"], [{"type": "envmap", "file": 5}], ["lights[0].file", "string"]),
+    (["lights"], [{"type": ["directional"], "direction": [0, -1, 0]}], ["lights[0].type"]),
+    (["camera", "fov"], "40", ["camera.fov"]),
+    (["medium"], {"type": "file", "file": "x.npz", "origin": "abc"}, ["x.npz"]),
+    (["medium"], {"type": "file", "file": "x.npz", "grid": "a\nb"}, ["medium.grid", "printable"]),
+    (["medium"], {"type": "file", "file": "x" * 100_000}, ["medium.file", "at most"]),
+])
+def test_wrong_types_give_one_line(path, value, words):
+    refused(with_(path, value), *words)
+
+
+def test_wrong_types_in_a_file_medium(blob):
+    refused(file_scene(blob, origin="abc"), "medium.origin")
+    refused(file_scene(blob, voxel_size=["a", "b", "c"]), "medium.voxel_size")
+
+
+def test_huge_values_give_short_messages():
+    many = [1.0] * 10_000_000
+    for path in (["medium", "scale"], ["camera", "origin"], ["lights", 0, "direction"], ["method", "resolution"]):
+        refused(with_(path, many))
+    refused(with_(["medium", "x" * 1_000_000], 1), "unknown key")
+    refused(with_(["medium", "bad\nkey"], 1), "unknown key")
+
+
+def test_ten_million_numbers_in_a_toml_file(tmp_path, capsys):
+    numbers = ", ".join(["1.0"] * 10_000_000)
+    scene = toml_scene(tmp_path, f"[medium]\nscale = [{numbers}]\n[[lights]]\ndirection = [0, -1, 0]\n")
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], "medium.scale")
+
+
+# -- memory: refused before allocating -----------------------------------------------------------
+
+def forged_npz(path, shape, file_size=None):
+    """An .npz whose header declares ``shape`` but holds a few bytes (``file_size``: forge the
+    zip directory's size too)."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f4", "fortran_order": False, "shape": shape})
+    data = header.getvalue() + b"\0" * 64
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("density.npy", data)
+    if file_size is not None:            # patch the central directory's uncompressed size
+        raw = bytearray(path.read_bytes())
+        at = raw.rfind(b"PK\x01\x02")
+        raw[at + 24:at + 28] = (file_size % 2**32).to_bytes(4, "little")
+        path.write_bytes(bytes(raw))
+    return path
+
+
+def test_npz_header_declaring_a_huge_grid(tmp_path, capsys, no_solve):
+    path = forged_npz(tmp_path / "huge.npz", (100_000,) * 3)
+    refused(file_scene(path), "huge.npz", "corrupt")
+    scene = toml_scene(tmp_path, f'[medium]\nfile = "{path}"\n[[lights]]\ndirection = [0, -1, 0]\n')
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], "huge.npz")
+
+
+def test_npz_larger_than_memory(tmp_path, monkeypatch):
+    path = tmp_path / "big.npz"
+    np.savez(path, density=np.ones((64, 64, 64), np.float32))
+    monkeypatch.setattr("popvol.domains.available_memory", lambda: 2**20)
+    refused(file_scene(path), "big.npz", "GiB")
+
+
+def test_procedural_resolution_beyond_memory(tmp_path, monkeypatch, capsys, no_solve):
+    monkeypatch.setattr("popvol.domains.available_memory", lambda: 3 * 2**30)
+    refused(with_(["medium", "resolution"], 1024), "medium.resolution = 1024", "GiB")
+    scene = toml_scene(tmp_path, "[medium]\nresolution = 1024\n[[lights]]\ndirection = [0, -1, 0]\n")
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], "medium.resolution")
+
+
+def test_image_beyond_memory_is_refused_before_rendering(tmp_path, monkeypatch, capsys, no_solve):
+    monkeypatch.setattr("popvol.domains.available_memory", lambda: 3 * 2**30)
+    scene = toml_scene(tmp_path, "[medium]\nresolution = 8\n[[lights]]\ndirection = [0, -1, 0]\n"
+                                 "[camera]\nwidth = 8192\nheight = 8192\n")
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], "camera.width", "GiB")
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png", "--width", "100000"], "camera.width")
+
+
+# -- the CLI -------------------------------------------------------------------------------------
+
+def test_stats_into_an_unwritable_folder_is_refused_before_any_work(tmp_path, capsys, no_solve):
+    scene = toml_scene(tmp_path, "[medium]\nresolution = 8\n[[lights]]\ndirection = [0, -1, 0]\n")
+    image = tmp_path / "a.png"
+    image.write_bytes(b"old")
+    cli_refuses(capsys, ["render", scene, "-o", image, "--stats", "/proc/popvol-stats.json"], "--stats")
+    assert image.read_bytes() == b"old"
+
+
+@pytest.mark.parametrize("snippet,words", [
+    ('[medium]\nfile = 123\n', ["medium.file"]),
+    ('[medium]\nresolution = 8\n[camera]\nfov = "40"\n', ["camera.fov"]),
+    ('[medium]\nresolution = 8\nscale = 1e308\n', ["medium.scale"]),
+    ('[medium]\nresolution = 8\n[camera]\nup = [1e308, 1e308, 1e308]\n', ["camera.up"]),
+    ('[medium]\nresolution = 8\nextent = 1e13\n', ["medium.extent"]),
+])
+def test_cli_answers_bad_scenes_with_one_line(tmp_path, capsys, snippet, words, no_solve):
+    light = '[[lights]]\ndirection = [0, -1, 0]\n'
+    scene = toml_scene(tmp_path, snippet.replace("[camera]", light + "[camera]") if "[camera]" in snippet
+                       else snippet + light)
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], *words)
+
+
+def test_cli_irradiance_names_the_field(tmp_path, capsys, no_solve):
+    scene = toml_scene(tmp_path, "[medium]\nresolution = 8\n[[lights]]\ndirection = [0, -1, 0]\n"
+                                 "irradiance = 1e308\n")
+    msg = cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], "lights[0].irradiance")
+    assert "internal error" not in msg
+
+
+# -- property-based: arbitrary values in every field ---------------------------------------------
+
+FIELDS = [("medium", k) for k in ("type", "file", "grid", "resolution", "seed", "extent", "scale", "albedo",
+                                  "g", "voxel_size", "origin")]
+FIELDS += [("lights", k) for k in ("type", "direction", "irradiance", "a0", "position", "intensity", "file",
+                                   "scale", "zenith", "horizon", "ground", "lights")]
+FIELDS += [("camera", k) for k in ("origin", "target", "up", "fov", "width", "height")]
+FIELDS += [("background", k) for k in ("type", "radiance")]
+FIELDS += [("method", k) for k in ("resolution", "diffusion_resolution", "environment_resolution", "tolerance",
+                                   "max_iterations", "step", "spp", "exposure", "seed")]
+FIELDS += [("experimental", k) for k in ("solver", "rule", "decay", "isotropic", "handover_scale")]
+FIELDS += [("", k) for k in ("medium", "lights", "light", "camera", "background", "method", "bogus")]
+
+numbers = st.one_of(st.integers(min_value=-2**70, max_value=2**70), st.integers(min_value=-(10**400), max_value=10**400),
+                    st.floats(allow_nan=True, allow_infinity=True),
+                    st.sampled_from([0, 1, -1, 0.5, 1e-300, 1e300, 1e308, -1e308, 1e12, 1e-9, 2**63, 4096, 8192]))
+scalars = st.one_of(st.none(), st.booleans(), numbers, st.text(max_size=20),
+                    st.sampled_from(["procedural", "file", "directional", "point", "sky", "envmap", "x.npz",
+                                     "/dev/null", ".", ""]))
+values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=5),
+                                                       st.dictionaries(st.text(max_size=8), inner, max_size=3)),
+                      max_leaves=12)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+@given(st.lists(st.tuples(st.sampled_from(FIELDS), values), min_size=1, max_size=3))
+def test_scene_loader_loads_or_refuses_with_one_line(changes):
+    data = copy.deepcopy(TINY)
+    for (table, key), value in changes:
+        if table == "":
+            data[key] = value
+        elif table == "lights":
+            if isinstance(data.get("lights"), list) and data["lights"] and isinstance(data["lights"][0], dict):
+                data["lights"][0][key] = value
+        elif isinstance(data.get(table, {}), dict):
+            data.setdefault(table, {})[key] = value
+    with mock.patch("popvol.domains.available_memory", return_value=2**28), warnings.catch_warnings():
+        warnings.simplefilter("error")
+        try:
+            scene = scene_from_dict(data, "s.toml", "/nonexistent-popvol-dir")
+        except PopvolError as e:
+            one_line(str(e))
+            return
+    assert np.all(np.isfinite(scene.medium.density)) and scene.lights
+
+
+@settings(max_examples=200, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow])
+@given(st.text(max_size=200))
+def test_toml_text_loads_or_refuses_with_one_line(text):
+    import tempfile
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "s.toml"
+        try:
+            path.write_text(text)
+        except UnicodeEncodeError:
+            return
+        with mock.patch("popvol.domains.available_memory", return_value=2**28):
+            try:
+                load_scene(path)
+            except PopvolError as e:
+                one_line(str(e))
