@@ -10,7 +10,7 @@ from popvol import envmap
 from popvol.errors import PopvolError
 from popvol.io.images import write_exr
 import twins as ref
-from popvol.render import render
+from popvol.renderer import render
 from popvol.scene import scene_from_dict
 
 

@@ -12,7 +12,7 @@ from popvol.kernels.propagation import band_edges
 from popvol.lights import PointLight
 from popvol.medium import Medium
 from popvol.pipeline import point_fields, solve, solve_light, voxels_seen
-from popvol.render import render
+from popvol.renderer import render
 from popvol.scene import Method, Scene
 from popvol.kernels.render import point_lookup
 from popvol.walk import medium_factors, split_table32

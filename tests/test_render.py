@@ -10,7 +10,7 @@ import twins as ref
 from popvol.lights import DirectionalLight
 from popvol.medium import Medium
 from popvol.pipeline import solve
-from popvol.render import render
+from popvol.renderer import render
 from popvol.scene import Method, Scene
 
 

@@ -15,7 +15,7 @@ from .lights import DirectionalLight, PointLight
 from .medium import Medium
 from .method import Method
 from .pipeline import solve
-from .render import render
+from .renderer import render
 from .results import Solution
 from .scene import Scene, load_scene, scene_from_dict
 

@@ -23,7 +23,7 @@ import numpy as np
 from .domains import directional_domain, resample_medium
 from .pipeline import solve
 from .walk import medium_factors, walk_box
-from .render import render
+from .renderer import render
 from .scene import DEMO_SCENE, load_scene, scene_from_dict
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

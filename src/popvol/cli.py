@@ -65,7 +65,7 @@ def render(scene, output, exr, width, height, stats, **knobs):
     from .io.files import write_text_atomically
     from .io.images import write_image
     from . import solve
-    from .render import render as render_image
+    from .renderer import render as render_image
     from .scene import load_scene
 
     outputs = {"-o/--output": (output, (".png", ".exr")), "--exr": (exr, (".exr",)), "--stats": (stats, (".json",))}
@@ -194,7 +194,7 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     from .io.images import write_image
     from . import solve
     from .reference import load_reference
-    from .render import render as render_image
+    from .renderer import render as render_image
     from .scene import load_scene
     from .io.files import write_text_atomically
     outputs = {"--json": (json_out, (".json",)), "--figure": (figure, (".png",)),

@@ -26,6 +26,7 @@ def corner_weights(x, n):
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def inside(x, y, z, shape):
+    """Whether continuous index (x, y, z) lies in the cells of a grid of ``shape``."""
     return (-0.5 <= x <= shape[0] - 0.5) and (-0.5 <= y <= shape[1] - 0.5) and (-0.5 <= z <= shape[2] - 0.5)
 
 
@@ -41,17 +42,30 @@ def trilinear(grid, x, y, z):
 @nb.njit(inline="always", fastmath=True, cache=True)
 def trilinear_clamped(grid, x, y, z):
     """Like :func:`trilinear` but clamps to the edge everywhere (for constants and fields)."""
-    s = grid.shape
-    i0, i1, fx = corner_weights(x, s[0])
-    j0, j1, fy = corner_weights(y, s[1])
-    k0, k1, fz = corner_weights(z, s[2])
+    return interpolate(grid, cell_corners(x, y, z, grid.shape))
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def cell_corners(x, y, z, shape):
+    """The trilinear stencil at continuous index (x, y, z) of a grid of ``shape``, clamped to
+    the edge: (i0, i1, j0, j1, k0, k1, fx, fy, fz), the lower and upper index and the upper
+    one's weight along each axis, for :func:`interpolate`."""
+    i0, i1, fx = corner_weights(x, shape[0])
+    j0, j1, fy = corner_weights(y, shape[1])
+    k0, k1, fz = corner_weights(z, shape[2])
+    return i0, i1, j0, j1, k0, k1, fx, fy, fz
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def interpolate(grid, corners):
+    """Trilinear value of ``grid`` (3-D) on the stencil ``corners`` of :func:`cell_corners`;
+    one stencil serves every grid of the same shape."""
+    i0, i1, j0, j1, k0, k1, fx, fy, fz = corners
     c00 = grid[i0, j0, k0] * (1 - fz) + grid[i0, j0, k1] * fz
     c01 = grid[i0, j1, k0] * (1 - fz) + grid[i0, j1, k1] * fz
     c10 = grid[i1, j0, k0] * (1 - fz) + grid[i1, j0, k1] * fz
     c11 = grid[i1, j1, k0] * (1 - fz) + grid[i1, j1, k1] * fz
-    c0 = c00 * (1 - fy) + c01 * fy
-    c1 = c10 * (1 - fy) + c11 * fy
-    return c0 * (1 - fx) + c1 * fx
+    return (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -96,13 +110,8 @@ def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, nee
                 px = world_origin[0] + x * voxel[0] - dom_origin[0]
                 py = world_origin[1] + y * voxel[1] - dom_origin[1]
                 pz = world_origin[2] + z * voxel[2] - dom_origin[2]
-                i0, i1, fx = corner_weights((px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5, s[0])
-                j0, j1, fy = corner_weights((px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5, s[1])
-                k0, k1, fz = corner_weights((px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5, s[2])
+                corners = cell_corners((px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5,
+                                       (px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5,
+                                       (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5, s)
                 for m in range(len(fields)):
-                    f = fields[m]
-                    c00 = f[i0, j0, k0] * (1 - fz) + f[i0, j0, k1] * fz
-                    c01 = f[i0, j1, k0] * (1 - fz) + f[i0, j1, k1] * fz
-                    c10 = f[i1, j0, k0] * (1 - fz) + f[i1, j0, k1] * fz
-                    c11 = f[i1, j1, k0] * (1 - fz) + f[i1, j1, k1] * fz
-                    outs[m][x, y, z] = (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+                    outs[m][x, y, z] = interpolate(fields[m], corners)

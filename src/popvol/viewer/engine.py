@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import PopvolError
 from ..io.images import tonemap, write_image
 from ..pipeline import solve
-from ..render import render
+from ..renderer import render
 from ..scene import DEMO_SCENE, load_scene
 from . import settings as S
 
