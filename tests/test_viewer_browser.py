@@ -137,7 +137,7 @@ def test_malformed_message_shows_an_error_and_the_page_keeps_working(page):
     page.wait_for_selector("#error:not([hidden])")
     assert "not valid JSON" in page.inner_text("#error")
     page.evaluate("() => popvolView.socket.send(JSON.stringify({type: 'set', settings: {g: 1}}))")
-    page.wait_for_function("() => document.getElementById('error').textContent.includes('outside (-1, 1)')")
+    page.wait_for_function("() => document.getElementById('error').textContent.includes('must be a finite number in (-1, 1)')")
     version = page.evaluate("() => popvolView.lastFrame.version")
     page.locator("#density").fill("0.5")                        # a slider: 10^0.5 x density
     wait_full_frame(page, after=version + 1)
