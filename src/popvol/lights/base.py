@@ -19,6 +19,7 @@ its own domain (as a point light's), the render kernel learns one more lookup.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar, Protocol
 
@@ -72,8 +73,9 @@ class LightDomain(Protocol):
 
 
 class Light:
-    """Base class of the lights. Subclasses are dataclasses with ``source`` (for messages) and
-    ``from_environment`` (one of the directional lights an environment map was split into)."""
+    """Base class of the lights. Subclasses are dataclasses with ``source`` (for messages: the
+    scene file and the light's table, ``"scene.toml: lights[0]"``) and ``from_environment``
+    (one of the directional lights an environment map was split into)."""
 
     #: the TOML ``type`` that selects the class, and the keys its table may hold
     type: ClassVar[str]
@@ -81,7 +83,10 @@ class Light:
     #: whether the renderer reads the walk's fields in the light's own domain (per sample),
     #: instead of on the world grid
     fields_in_domain: ClassVar[bool] = False
+    #: the field holding its RGB power (irradiance, intensity)
+    power_field: ClassVar[str]
     from_environment: bool = False
+    source: str = "<light>"
 
     @classmethod
     def from_table(cls, table: dict, name: str, src: str) -> "Light":
@@ -91,7 +96,12 @@ class Light:
     @property
     def power(self) -> np.ndarray:
         """float64 (3,): what the renderer scales the per-unit fields by."""
-        raise NotImplementedError
+        return getattr(self, self.power_field)
+
+    def field(self, name: str) -> tuple[str, str]:
+        """(field name, source) for check.py's messages: ``lights[0].position``, ``scene.toml``."""
+        src, _, table = self.source.rpartition(": ")
+        return (f"{table}.{name}", src) if src else (f"light.{name}", self.source)
 
     def key(self) -> tuple:
         """What its per-unit-power solution depends on (not its power)."""
@@ -109,7 +119,7 @@ class Light:
 
     def scaled(self, factor: float) -> "Light":
         """The same light with its power times ``factor``."""
-        raise NotImplementedError
+        return dataclasses.replace(self, **{self.power_field: self.power * factor})
 
     def mitsuba(self) -> dict:
         """Its Mitsuba 3 emitter dict (the reference renderer's plugin parameters)."""

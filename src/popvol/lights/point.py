@@ -42,6 +42,7 @@ class PointLight(Light):
     type: ClassVar[str] = "point"
     keys: ClassVar[frozenset] = frozenset({"type", "position", "intensity"})
     fields_in_domain: ClassVar[bool] = True
+    power_field: ClassVar[str] = "intensity"
 
     position: np.ndarray
     intensity: np.ndarray
@@ -49,19 +50,14 @@ class PointLight(Light):
     from_environment: bool = False
 
     def __post_init__(self):
-        self.position = check.vector(self.position, "position", self.source)
-        self.intensity = check.power(self.intensity, "intensity", self.source)
+        self.position = check.vector(self.position, *self.field("position"))
+        self.intensity = check.power(self.intensity, *self.field("intensity"))
 
     @classmethod
     def from_table(cls, t: dict, name: str, src: str) -> "PointLight":
         if "position" not in t:
             raise PopvolError(f"{src}: {name}.position is required (the light's world position)")
-        return cls(check.vector(t["position"], f"{name}.position", src),
-                   check.power(t.get("intensity", 1.0), f"{name}.intensity", src), source=f"{src}: {name}")
-
-    @property
-    def power(self) -> np.ndarray:
-        return self.intensity
+        return cls(t["position"], t.get("intensity", 1.0), source=f"{src}: {name}")
 
     @property
     def render_position(self) -> np.ndarray:
@@ -71,7 +67,8 @@ class PointLight(Light):
         return ("point", tuple(self.position))
 
     def check(self, medium) -> None:
-        check_point_distance(medium, self.position, f"{self.source}.position")
+        name, src = self.field("position")
+        check_point_distance(medium, self.position, f"{src}: {name}")
 
     def domain(self, medium, method) -> "SphericalDomain":
         return spherical_domain(medium, self.position, method.resolution)
@@ -79,9 +76,6 @@ class PointLight(Light):
     def table(self) -> dict:
         return {"type": self.type, "position": [float(x) for x in self.position],
                 "intensity": [float(x) for x in self.intensity]}
-
-    def scaled(self, factor: float) -> "PointLight":
-        return PointLight(self.position, self.intensity * factor, self.source, self.from_environment)
 
     def mitsuba(self) -> dict:
         # intensity [W/sr] in both

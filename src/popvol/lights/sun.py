@@ -34,6 +34,7 @@ class DirectionalLight(Light):
 
     type: ClassVar[str] = "directional"
     keys: ClassVar[frozenset] = frozenset({"type", "direction", "irradiance", "a0"})
+    power_field: ClassVar[str] = "irradiance"
 
     direction: np.ndarray
     irradiance: np.ndarray
@@ -42,27 +43,21 @@ class DirectionalLight(Light):
     from_environment: bool = False
 
     def __post_init__(self):
-        d = check.vector(self.direction, "direction", self.source, nonzero=True)
+        d = check.vector(self.direction, *self.field("direction"), nonzero=True)
         with np.errstate(over="ignore"):              # e.g. [1e308, 1e308, 0]: rescaled below
             norm = np.linalg.norm(d)
         if not np.isfinite(norm):
             d = d / np.abs(d).max()
             norm = np.linalg.norm(d)
         self.direction = d / norm
-        self.irradiance = check.power(self.irradiance, "irradiance", self.source)
-        self.a0 = check.number(self.a0, "a0", self.source, 0.0, 1.0)
+        self.irradiance = check.power(self.irradiance, *self.field("irradiance"))
+        self.a0 = check.number(self.a0, *self.field("a0"), 0.0, 1.0)
 
     @classmethod
     def from_table(cls, t: dict, name: str, src: str) -> "DirectionalLight":
         if "direction" not in t:
             raise PopvolError(f"{src}: {name}.direction is required (the direction the light travels)")
-        return cls(check.vector(t["direction"], f"{name}.direction", src, nonzero=True),
-                   check.power(t.get("irradiance", 1.0), f"{name}.irradiance", src),
-                   check.number(t.get("a0", 1.0), f"{name}.a0", src, 0.0, 1.0), source=f"{src}: {name}")
-
-    @property
-    def power(self) -> np.ndarray:
-        return self.irradiance
+        return cls(t["direction"], t.get("irradiance", 1.0), t.get("a0", 1.0), source=f"{src}: {name}")
 
     @property
     def render_direction(self) -> np.ndarray:
@@ -82,10 +77,6 @@ class DirectionalLight(Light):
     def table(self) -> dict:
         return {"type": self.type, "direction": [float(x) for x in self.direction],
                 "irradiance": [float(x) for x in self.irradiance], "a0": float(self.a0)}
-
-    def scaled(self, factor: float) -> "DirectionalLight":
-        return DirectionalLight(self.direction, self.irradiance * factor, self.a0, self.source,
-                                self.from_environment)
 
     def mitsuba(self) -> dict:
         return {"type": "directional", "direction": self.direction.tolist(),
