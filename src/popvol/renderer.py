@@ -1,7 +1,6 @@
 """Render an image of a solved scene by ray marching (see kernels/render.py for the equations)."""
 from __future__ import annotations
 
-import time
 
 import numba
 import numpy as np
@@ -62,13 +61,3 @@ def background_map(scene: Scene) -> np.ndarray:
     if scene.environment is not None:
         return scene.environment.radiance
     return np.asarray(scene.background, np.float32).reshape(1, 1, 3)
-
-
-def render_timed(scene: Scene) -> tuple[np.ndarray, Solution, dict]:
-    """Solve and render; returns (image, solution, seconds per stage)."""
-    solution = solve(scene)
-    t0 = time.perf_counter()
-    img = render(scene, solution)
-    seconds = dict(solution.seconds)
-    seconds["render"] = time.perf_counter() - t0
-    return img, solution, seconds
