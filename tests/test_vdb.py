@@ -114,6 +114,20 @@ def test_grids_popvol_cannot_use_are_clear_errors(tmp_path, body, message):
 
 
 @needs_reader
+def test_sparse_grid_too_large_to_densify_is_refused_before_allocating(tmp_path):
+    """Two active voxels 10^5 apart: a bounding box of 10^15 voxels, a few bytes on disk."""
+    p = tmp_path / "sparse.vdb"
+    _write_vdb(p, """
+        g = vdb.FloatGrid(); g.name = "density"
+        a = g.getAccessor(); a.setValueOn((0, 0, 0), 1.0); a.setValueOn((100000, 100000, 100000), 1.0)
+        vdb.write(path, grids=[g])
+    """)
+    with pytest.raises(PopvolError, match=r"grid 'density'.*100001x100001x100001 voxels.*GiB") as e:
+        read_volume(p)
+    assert str(p) in str(e.value)
+
+
+@needs_reader
 def test_unreadable_vdb(tmp_path):
     p = tmp_path / "junk.vdb"
     p.write_bytes(b"this is not an OpenVDB file" * 10)

@@ -27,7 +27,7 @@ try:
     import pyopenvdb as vdb
 except ImportError as e:
     print(json.dumps({"error": "import", "detail": str(e)})); sys.exit(0)
-path, name, out = sys.argv[1:4]
+path, name, out, max_bytes = sys.argv[1:5]
 try:
     grids = vdb.readAllGridMetadata(path)
 except Exception as e:
@@ -48,6 +48,9 @@ lo, hi = g.evalActiveVoxelBoundingBox()
 shape = tuple(int(h) - int(l) + 1 for l, h in zip(lo, hi))
 if min(shape) < 1 or g.activeVoxelCount() == 0:
     print(json.dumps({"error": "empty", "name": name})); sys.exit(0)
+count = shape[0] * shape[1] * shape[2]
+if count * 4 > int(max_bytes):
+    print(json.dumps({"error": "memory", "name": name, "shape": shape})); sys.exit(0)
 xf = g.transform
 o = np.array(xf.indexToWorld(tuple(lo)), float)
 axes = np.array([np.array(xf.indexToWorld(tuple(l + (a == b) for a, l in enumerate(lo))), float) - o
@@ -80,11 +83,18 @@ def read_vdb(path, grid: str | None = None):
     if exe is None:
         raise PopvolError(f"{path}: reading .vdb needs Debian's python3 with pyopenvdb; {hint} "
                           "(or set POPVOL_VDB_PYTHON to an interpreter that has it)")
+    from ..domains import available_memory
+    from .volumes import BYTES_PER_READ_VOXEL
+    # The dense float32 copy (4 bytes per voxel) exists in the reader and in this process, which
+    # then checks it (BYTES_PER_READ_VOXEL more): refuse in the reader, before it allocates.
+    bytes_per_voxel = 4 + 4 + BYTES_PER_READ_VOXEL
+    max_bytes = int(0.8 * available_memory() * 4 / bytes_per_voxel)
     with tempfile.TemporaryDirectory(prefix="popvol-vdb-") as tmp:
         out = Path(tmp) / "grid.npz"
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV")}
         try:
-            proc = subprocess.run([exe, "-I", "-c", _READER, str(path), grid or "", str(out)],
+            proc = subprocess.run([exe, "-I", "-c", _READER, str(path), grid or "", str(out),
+                                   str(max_bytes)],
                                   capture_output=True, text=True, env=env, timeout=600)
         except (OSError, subprocess.TimeoutExpired) as e:
             raise PopvolError(f"{path}: the OpenVDB reader ({exe}) failed to run: {e}") from None
@@ -107,6 +117,12 @@ def read_vdb(path, grid: str | None = None):
                               "float or double grids")
         if err == "empty":
             raise PopvolError(f"{path}: grid {msg['name']!r} has no active voxels")
+        if err == "memory":
+            from ..domains import check_memory
+            shape = msg["shape"]
+            count = int(np.prod(shape, dtype=np.int64))
+            check_memory(count * bytes_per_voxel, f"{path}: grid {msg['name']!r}",
+                         f"densifying its active bounding box of {'x'.join(map(str, shape))} voxels")
         if err == "transform":
             raise PopvolError(f"{path}: grid {msg['name']!r} has a rotated, sheared or non-linear "
                               "transform; popvol reads axis-aligned (scale + translate) grids")
