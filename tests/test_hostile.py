@@ -325,7 +325,7 @@ FIELDS += [("lights", k) for k in ("type", "direction", "irradiance", "a0", "pos
 FIELDS += [("camera", k) for k in ("origin", "target", "up", "fov", "width", "height")]
 FIELDS += [("background", k) for k in ("type", "radiance")]
 FIELDS += [("method", k) for k in ("resolution", "diffusion_resolution", "environment_resolution", "tolerance",
-                                   "max_iterations", "step", "spp", "exposure", "seed")]
+                                   "max_iterations", "step", "spp", "exposure", "tone", "seed")]
 FIELDS += [("experimental", k) for k in ("solver", "rule", "decay", "isotropic", "handover_scale")]
 FIELDS += [("", k) for k in ("medium", "lights", "light", "camera", "background", "method", "bogus")]
 

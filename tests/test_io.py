@@ -429,7 +429,7 @@ def test_png_is_8bit_srgb(tmp_path):
     h, w = 5, 8
     lin = np.linspace(0, 1.5, h * w * 3).reshape(h, w, 3).astype(np.float32)
     p = tmp_path / "a.png"
-    images.write_png(p, lin)
+    images.write_png(p, lin, exposure=0.0, tone="clip")
     im = Image.open(p)
     assert im.mode == "RGB" and im.size == (w, h)
     px = np.asarray(im)
@@ -437,23 +437,23 @@ def test_png_is_8bit_srgb(tmp_path):
     expected = np.round(np.clip(srgb_encode(np.clip(lin, 0, 1)), 0, 1) * 255)
     np.testing.assert_array_equal(px, expected.astype(np.uint8))
     # exposure +1 stop = doubling the linear values
-    images.write_png(p, lin, exposure=1.0)
+    images.write_png(p, lin, exposure=1.0, tone="clip")
     expected = np.round(np.clip(srgb_encode(np.clip(2 * lin.astype(np.float64), 0, 1)), 0, 1) * 255)
     np.testing.assert_array_equal(np.asarray(Image.open(p)), expected.astype(np.uint8))
 
 
 def test_tonemap_zero_monotone_and_known_points():
     x = np.linspace(0, 4, 4001).reshape(-1, 1, 1) * np.ones((1, 1, 3))
-    t = images.tonemap(x)
+    t = images.tonemap(x, 0.0, "clip")
     assert t.dtype == np.uint8
     assert np.all(t[0] == 0)
     assert np.all(np.diff(t[:, 0, 0].astype(int)) >= 0)
     assert np.all(t[x[:, 0, 0] >= 1] == 255)
     # known sRGB values: 18 % grey -> 117.9 -> 118, 0.5 -> 187.5 -> 188, 0.0031308 -> 10.3 -> 10
     pts = np.array([0.18, 0.5, 0.0031308, 0.001]).reshape(1, -1, 1) * np.ones((1, 1, 3))
-    assert images.tonemap(pts)[0, :, 0].tolist() == [118, 188, 10, 3]
+    assert images.tonemap(pts, 0.0, "clip")[0, :, 0].tolist() == [118, 188, 10, 3]
     # exposure shifts by whole stops
-    np.testing.assert_array_equal(images.tonemap(x / 4, exposure=2.0), images.tonemap(x))
+    np.testing.assert_array_equal(images.tonemap(x / 4, exposure=2.0, tone="clip"), images.tonemap(x, 0.0, "clip"))
     np.testing.assert_allclose(images.linear_to_srgb([0.0, 1.0]), [0.0, 1.0], atol=1e-12)
 
 

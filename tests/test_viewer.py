@@ -205,7 +205,7 @@ def test_saved_toml_renders_the_view_exactly(engine, tmp_path, monkeypatch):
 
     from popvol.io.images import tonemap
     saved = np.asarray(Image.open(png))
-    assert np.array_equal(saved, tonemap(image, scene.method.exposure))
+    assert np.array_equal(saved, tonemap(image, scene.method.exposure, scene.method.tone))
     assert np.array_equal(saved, np.asarray(Image.open(io.BytesIO(view.png))))
     # and through the command line
     r = subprocess.run([sys.executable, "-m", "popvol.cli", "render", str(toml), "-o", "again.png"],

@@ -7,7 +7,10 @@ The whole pipeline in a few names::
     scene = popvol.load_scene("examples/demo.toml")   # or load_scene() for the built-in demo
     solution = popvol.solve(scene)                     # propagate every light
     image = popvol.render(scene, solution)             # float32 (H, W, 3) linear HDR
-    popvol.write_image("cloud.png", image, scene.method.exposure)
+    popvol.write_image("cloud.png", image, scene.method.exposure, scene.method.tone)
+
+``write_image`` tone maps a PNG (exposure "auto" or stops; tone "aces", the ACES 2.0 SDR
+view through OpenColorIO, or "clip") and writes an EXR linear.
 """
 from .errors import PopvolError
 from .io.images import write_image

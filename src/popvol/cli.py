@@ -25,7 +25,7 @@ def method_options(command: str):
     not given)."""
     def decorate(f):
         for k in reversed(cli_knobs(command)):
-            f = click.option(k.option, k.name, type=k.type, default=None, help=k.help)(f)
+            f = click.option(k.option, k.name, type=k.cli_type, default=None, help=k.help)(f)
         return f
     return decorate
 
@@ -36,7 +36,7 @@ def _method_overrides(command: str, knobs: dict) -> dict:
     given = {}
     for k in cli_knobs(command):
         if knobs.get(k.name) is not None:
-            given[k.name] = k.check(knobs[k.name], f"popvol {command}", k.option)
+            given[k.name] = k.check(k.cli_value(knobs[k.name]), f"popvol {command}", k.option)
     return given
 
 
@@ -93,7 +93,7 @@ def render(scene, output, exr, width, height, stats, **knobs):
         t_render = time.perf_counter() - t1
         bar.update(task, completed=1, total=1)
     t2 = time.perf_counter()
-    write_image(output, img, sc.method.exposure)
+    write_image(output, img, sc.method.exposure, sc.method.tone)
     if exr:
         write_image(exr, img)
     t_write = time.perf_counter() - t2
@@ -221,9 +221,10 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     if figure:
         metrics.comparison_figure(figure, img, ref.image, sc.method.exposure,
                                   f"{Path(sc.source).name}: {_method_label(sc.method)}, "
-                                  f"{sc.method.resolution} cells, reference {ref.spp} spp", mask=mask)
+                                  f"{sc.method.resolution} cells, reference {ref.spp} spp", mask=mask,
+                                  tone=sc.method.tone)
     if output:
-        write_image(output, img, sc.method.exposure)
+        write_image(output, img, sc.method.exposure, sc.method.tone)
     if res["mask_pixels"] == 0:
         click.echo("popvol: warning: no camera ray crosses the medium; the relative metrics are n/a", err=True)
     b = res["brightness_bands"]

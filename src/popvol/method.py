@@ -30,6 +30,7 @@ class Knob:
     doc: the rest of the docs' meaning column.
     experimental: set in ``[experimental]``, not in ``[method]``; not on the command line.
     zero: 0 is allowed besides [lo, hi] (it means "automatic").
+    auto: a number knob whose default is the string "auto", allowed besides [lo, hi].
     cli: the commands (``"render"``, ``"compare"``) that offer ``--name``.
     default_text, allowed_text: what docs/SCENE.md shows instead of the plain default/range.
     """
@@ -41,6 +42,7 @@ class Knob:
     doc: str = ""
     experimental: bool = False
     zero: bool = False
+    auto: bool = False
     cli: tuple[str, ...] = ()
     default_text: str = ""
     allowed_text: str = ""
@@ -52,7 +54,23 @@ class Knob:
 
     @property
     def type(self) -> type:
-        return type(self.default)
+        """int, float or str (an ``auto`` knob: float, though its value may be "auto")."""
+        return float if self.auto else type(self.default)
+
+    @property
+    def cli_type(self) -> type:
+        """The type click converts the option to (an ``auto`` knob's text: see cli_value)."""
+        return str if self.auto else self.type
+
+    def cli_value(self, value):
+        """An ``auto`` knob's option text as "auto" or a float (other text is left for check
+        to refuse); other knobs' values unchanged."""
+        if self.auto and isinstance(value, str) and value != "auto":
+            try:
+                return float(value)
+            except ValueError:
+                return value
+        return value
 
     @property
     def option(self) -> str:
@@ -63,6 +81,15 @@ class Knob:
         """``value`` validated (as int, float or str), or a one-line PopvolError naming
         ``name`` (default: ``table.name``)."""
         name = name or f"{self.table}.{self.name}"
+        if self.auto:
+            if isinstance(value, str) and value == "auto":
+                return "auto"
+            lo, hi = self.allowed
+            try:
+                return check.number(value, name, src, lo, hi)
+            except PopvolError:
+                raise PopvolError(f"{src}: {name} = {check._show(value)} must be 'auto' or a finite "
+                                  f"number in [{check._fmt(lo)}, {check._fmt(hi)}]") from None
         if self.type is str:
             return check.choice(value, name, src, self.allowed)
         lo, hi = self.allowed
@@ -115,8 +142,13 @@ KNOBS: tuple[Knob, ...] = (
          default_text="0 (automatic: 400 sweeps, or 40 x the domain's perimeter for Jacobi)"),
     Knob("step", 0.5, (1e-3, 16.0), "Ray-marching step, in voxels of the medium."),
     Knob("spp", 1, (1, 4096), "Jittered camera rays per pixel.", cli=("render", "compare")),
-    Knob("exposure", 0.0, (-64.0, 64.0), "PNG exposure in stops.", "The EXR stays linear.",
-         cli=("render",)),
+    Knob("exposure", "auto", (-64.0, 64.0), "PNG exposure in stops, or \"auto\".",
+         "\"auto\" places the 99th percentile of the lit pixels' luminance at 1.44 (Zone VIII: "
+         "white with texture), shown at sRGB code 197 by `tone = \"aces\"`. The EXR stays linear.",
+         auto=True, cli=("render",)),
+    Knob("tone", "aces", ("aces", "clip"), "Tone curve of the PNG.",
+         "The ACES 2.0 SDR sRGB view (OpenColorIO's built-in config; highlights roll off) or "
+         "clip to [0, 1] and sRGB-encode. The EXR stays linear.", cli=("render",)),
     Knob("seed", 0, (0, 2**63 - 1), "Seed of the pixel jitter.", allowed_text="[0, 2^63 - 1]"),
 )
 
@@ -182,7 +214,8 @@ def method_tables(method) -> dict:
     plain = {int: int, float: float, str: str}
     out = {"method": {}, "experimental": {}}
     for k in KNOBS:
-        v = plain[k.type](getattr(method, k.name))
+        v = getattr(method, k.name)
+        v = v if k.auto and isinstance(v, str) else plain[k.type](v)
         if not k.experimental:
             out["method"][k.name] = v
         elif v != k.default:
@@ -202,7 +235,11 @@ def knob_table_markdown(experimental: bool = False) -> str:
         if k.experimental != experimental:
             continue
         kind = {int: "integer", float: "number", str: "string"}[k.type]
-        if k.type is str:
+        if k.auto:
+            kind = 'number or `"auto"`'
+            default = f'`"{k.default}"`'
+            allowed = f'`"auto"`, [{check._fmt(k.allowed[0])}, {check._fmt(k.allowed[1])}]'
+        elif k.type is str:
             default = f'`"{k.default}"`'
             allowed = ", ".join(f'`"{a}"`' for a in k.allowed)
         else:

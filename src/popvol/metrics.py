@@ -309,17 +309,19 @@ def compare(img, ref, mask=None, variance=None) -> dict:
             "rmse": rmse(img, ref), "ssim": ssim(img, ref), "flip": flip(img, ref)}
 
 
-def comparison_figure(path, img, ref, exposure: float = 0.0, title: str = "", mask=None) -> None:
+def comparison_figure(path, img, ref, exposure="auto", title: str = "", mask=None, tone: str = "aces") -> None:
     """popvol | reference | per-pixel relative error (log heat map) | luminance ratio popvol /
     reference (diverging around 1, log scale 0.5 to 2); both maps on the mask only (``mask``
-    bool (H, W), default :func:`luminance_mask` of ``ref``)."""
+    bool (H, W), default :func:`luminance_mask` of ``ref``). popvol and the reference are tone
+    mapped alike: ``exposure`` in stops, or "auto" from the reference, and ``tone``."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
-    from .io.images import tonemap
+    from .io.images import resolve_exposure, tonemap
     img, ref = _pair(img, ref)
+    exposure = resolve_exposure(ref, exposure, tone)          # the same stops for both
     mask = _mask(mask, ref)
     h, w = ref.shape[:2]
     aspect = w / h
@@ -327,9 +329,9 @@ def comparison_figure(path, img, ref, exposure: float = 0.0, title: str = "", ma
                              gridspec_kw={"width_ratios": [1, 1, 1.12, 1.12]})
     err = np.sqrt(relmse_map(img, ref, mask))          # relative error per pixel, NaN off the mask
     bright = band_ratios(img, ref, mask)
-    axes[0].imshow(tonemap(img, exposure))
+    axes[0].imshow(tonemap(img, exposure, tone))
     axes[0].set_title(f"popvol (brightness x{brightness_ratio(img, ref, mask):.2f})")
-    axes[1].imshow(tonemap(ref, exposure))
+    axes[1].imshow(tonemap(ref, exposure, tone))
     axes[1].set_title("reference")
     top = float(np.nanmax(err)) if np.isfinite(err).any() else 1.0
     im = axes[2].imshow(np.ma.masked_invalid(np.maximum(err, 1e-3)), cmap=plt.get_cmap("inferno").with_extremes(bad="0.85"),

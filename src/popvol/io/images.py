@@ -1,11 +1,24 @@
-"""Images: linear HDR as OpenEXR (written and read), display images as PNG (exposure + sRGB),
-written atomically (io/files.py).
+"""Images: linear HDR as OpenEXR (written and read), display images as PNG (exposure + a tone
+curve + sRGB), written atomically (io/files.py).
 
-Images are float32 (H, W, 3) linear RGB radiance. Clipping to [0, 1] happens only when a
+Images are float32 (H, W, 3) linear Rec.709 RGB radiance. Tone mapping happens only when a
 display image (PNG) is made; the EXR keeps the linear values.
+
+Tone curves (:data:`TONES`):
+
+- ``"aces"`` (default): the ACES 2.0 SDR output transform (100 nits, Rec.709 primaries, sRGB
+  display encoding), applied by OpenColorIO from its built-in config :data:`OCIO_CONFIG`
+  (pinned by version so that images stay reproducible). Mid grey 0.18 shows at 10 % of the
+  display's white luminance (10 of 100 nits, sRGB code 89); highlights roll off instead of
+  clipping (1.0 shows at code 180, 4.0 at 229, white is reached near 128).
+- ``"clip"``: exposure, clip to [0, 1], sRGB encoding: popvol's tone curve before ACES.
+
+Exposure is a number of stops or ``"auto"`` (:func:`auto_exposure`).
 """
 from __future__ import annotations
 
+import functools
+import math
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +28,32 @@ from .files import write_atomically
 
 SUFFIXES = (".png", ".exr")
 
+#: The tone curves of the PNG.
+TONES = ("aces", "clip")
+
+#: OpenColorIO's built-in config, pinned by version (it ships with OpenColorIO >= 2.6), and the
+#: colour space, display and view of the "aces" tone curve.
+OCIO_CONFIG = "cg-config-v5.0.0_aces-v2.1_ocio-v2.6"
+OCIO_SOURCE = "Linear Rec.709 (sRGB)"
+OCIO_DISPLAY = "sRGB - Display"
+OCIO_VIEW = "ACES 2.0 - SDR 100 nits (Rec.709)"
+
+#: Rec.709 / sRGB luminance weights (ITU-R BT.709).
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+
+#: :func:`auto_exposure`: the percentile of the lit pixels' luminance that is metered ...
+AUTO_PERCENTILE = 99.0
+#: ... and the scene-linear value it is placed at, per tone curve: for "aces" 1.44 = 0.18 x 2^3,
+#: Zone VIII of Adams's zone system (three stops over middle grey: "white with texture"),
+#: which ACES 2.0 SDR shows at 77 % of the display's range (sRGB code 197); for "clip" the
+#: value the sRGB encoding shows at that same 77 % (0.556), so both curves meter alike.
+AUTO_TARGET = {"aces": 1.44, "clip": 0.556}
+
+#: Scaled radiance is capped here before the float32 OCIO transform (ACES 2.0 SDR is white
+#: from about 128 up; the cap keeps huge exposures from overflowing float32).
+_CAP = 1e6
+_CHUNK = 1 << 18                   # pixels tone mapped at a time (bounds the temporaries)
+
 
 def linear_to_srgb(x):
     """The sRGB transfer function (IEC 61966-2-1) on linear values in [0, 1]."""
@@ -22,10 +61,85 @@ def linear_to_srgb(x):
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
 
 
-def tonemap(rgb, exposure: float = 0.0) -> np.ndarray:
-    """uint8 (H, W, 3) display image: scale by 2^exposure, sRGB-encode, clip to [0, 1], round."""
-    x = np.asarray(rgb, np.float64) * 2.0**exposure
-    return np.round(np.clip(linear_to_srgb(np.clip(x, 0.0, 1.0)), 0.0, 1.0) * 255).astype(np.uint8)
+def luminance(rgb) -> np.ndarray:
+    """float64 (H, W) Rec.709 luminance of a linear (H, W, 3) image."""
+    rgb = np.asarray(rgb)
+    return sum(w * rgb[..., i].astype(np.float64) for i, w in enumerate(LUMINANCE))
+
+
+def auto_exposure(rgb, mask=None, tone: str = "aces") -> float:
+    """Exposure in stops from the image's Rec.709 luminance: the ``AUTO_PERCENTILE`` (99th)
+    percentile of the lit pixels is placed at ``AUTO_TARGET[tone]`` (for "aces" 1.44, Zone
+    VIII, shown at 77 % of the display's range, sRGB code 197).
+
+    Why: expose for the highlights, as a photographer does for a sunlit cloud. The brightest
+    percent of the frame (a cloud's sunlit rim, or the sky behind it) reads near-white with
+    texture, not clipped, and the curve's shoulder keeps detail in the last percent above it.
+    A percentile, unlike the maximum, ignores fireflies or a light seen directly; unlike a
+    log-average key it does not turn a bright sky grey or depend on how much of the frame
+    is background. The target was chosen by eye on the scenes of examples/.
+
+    Only lit pixels count (luminance > 0; ``mask``, bool (H, W), narrows them further): a
+    black background carries no exposure information. NaN and inf are ignored; an image
+    with no lit pixel gets 0.0. Scale-free: ``auto_exposure(k * rgb) == auto_exposure(rgb) -
+    log2(k)``.
+    """
+    if tone not in AUTO_TARGET:
+        raise PopvolError(f"tone {tone!r} is unknown (known: {', '.join(TONES)})")
+    y = luminance(rgb)
+    ok = np.isfinite(y) & (y > 0)
+    if mask is not None:
+        ok &= np.asarray(mask, bool)
+    y = y[ok]
+    if y.size == 0:
+        return 0.0
+    key = float(np.percentile(y, AUTO_PERCENTILE))
+    if not (key > 0 and math.isfinite(key)):
+        return 0.0
+    return math.log2(AUTO_TARGET[tone]) - math.log2(key)
+
+
+@functools.cache
+def _aces_processor():
+    """OpenColorIO's CPU processor of the ACES 2.0 SDR sRGB view (built once)."""
+    try:
+        import PyOpenColorIO as ocio
+        config = ocio.Config.CreateFromBuiltinConfig(OCIO_CONFIG)
+        proc = config.getProcessor(OCIO_SOURCE, OCIO_DISPLAY, OCIO_VIEW, ocio.TRANSFORM_DIR_FORWARD)
+    except Exception as e:          # not installed, or too old to ship OCIO_CONFIG
+        raise PopvolError(f"tone 'aces' needs OpenColorIO >= 2.6 with its built-in config {OCIO_CONFIG} "
+                          f"(pip install 'opencolorio>=2.6'), or use tone 'clip' ({' '.join(str(e).split())})") from None
+    return proc.getDefaultCPUProcessor()
+
+
+def resolve_exposure(rgb, exposure="auto", tone: str = "aces") -> float:
+    """``exposure`` in stops: the number itself, or :func:`auto_exposure` of ``rgb`` for "auto"."""
+    if isinstance(exposure, str):
+        if exposure != "auto":
+            raise PopvolError(f"exposure {exposure!r} must be a number of stops or 'auto'")
+        return auto_exposure(rgb, tone=tone)
+    return float(exposure)
+
+
+def tonemap(rgb, exposure="auto", tone: str = "aces") -> np.ndarray:
+    """uint8 (H, W, 3) display image of the linear (H, W, 3) ``rgb``: scaled by 2^exposure
+    (``exposure`` in stops, or "auto": :func:`auto_exposure`), then the ``tone`` curve
+    ("aces": ACES 2.0 SDR via OpenColorIO; "clip": clip to [0, 1] and sRGB-encode), rounded."""
+    if tone not in TONES:
+        raise PopvolError(f"tone {tone!r} is unknown (known: {', '.join(TONES)})")
+    scale = 2.0 ** resolve_exposure(rgb, exposure, tone)
+    if tone == "clip":
+        x = np.asarray(rgb, np.float64) * scale
+        return np.round(np.clip(linear_to_srgb(np.clip(x, 0.0, 1.0)), 0.0, 1.0) * 255).astype(np.uint8)
+    rgb = np.asarray(rgb)
+    out = np.empty(rgb.shape, np.uint8)
+    proc = _aces_processor()
+    flat, flat_out = rgb.reshape(-1, 3), out.reshape(-1, 3)
+    for i in range(0, flat.shape[0], _CHUNK):
+        x = np.clip(flat[i:i + _CHUNK].astype(np.float64) * scale, 0.0, _CAP).astype(np.float32)[None]
+        proc.applyRGB(x)
+        flat_out[i:i + _CHUNK] = np.round(np.clip(x[0], 0.0, 1.0) * 255)
+    return out
 
 
 def _check(path: Path, rgb) -> np.ndarray:
@@ -39,11 +153,12 @@ def _check(path: Path, rgb) -> np.ndarray:
     return rgb
 
 
-def write_png(path, rgb, exposure: float = 0.0) -> None:
+def write_png(path, rgb, exposure="auto", tone: str = "aces") -> None:
+    """8-bit sRGB PNG of :func:`tonemap` (``exposure`` in stops or "auto", ``tone``)."""
     from PIL import Image
     path = Path(path)
     rgb = _check(path, rgb)
-    image = Image.fromarray(tonemap(rgb, exposure), "RGB")
+    image = Image.fromarray(tonemap(rgb, exposure, tone), "RGB")
     try:
         write_atomically(path, lambda tmp: image.save(tmp, format="PNG"))
     except OSError as e:
@@ -83,11 +198,12 @@ def read_exr(path) -> np.ndarray:
     return np.asarray(rgb, np.float32)
 
 
-def write_image(path, rgb, exposure: float = 0.0) -> None:
-    """Write by suffix: .png (tone mapped with ``exposure``) or .exr (linear)."""
+def write_image(path, rgb, exposure="auto", tone: str = "aces") -> None:
+    """Write by suffix: .png (tone mapped with ``exposure`` and ``tone``, see :func:`tonemap`)
+    or .exr (linear; exposure and tone do not apply)."""
     suffix = Path(path).suffix.lower()
     if suffix == ".png":
-        write_png(path, rgb, exposure)
+        write_png(path, rgb, exposure, tone)
     elif suffix == ".exr":
         write_exr(path, rgb)
     else:

@@ -1,6 +1,8 @@
 """The viewer's renderer: turns settings into frames, propagating only when it must.
 
 - A camera or exposure change renders with the solution it has (no propagation).
+- The PNG uses the scene's tone curve; with the scene's exposure "auto" the exposure control is
+  an offset on each frame's auto exposure, and Save writes the stops the saved view used.
 - An intensity change replaces the solution's irradiance (fields are per unit power).
 - A sun or medium change propagates again; ``popvol.solve(reuse=...)`` copies
   the domains of lights that did not change from the previous solution.
@@ -24,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PopvolError
-from ..io.images import tonemap, write_image
+from ..io.images import auto_exposure, tonemap, write_image
 from ..pipeline import solve
 from ..renderer import render
 from ..scene import DEMO_SCENE, load_scene
@@ -41,7 +43,8 @@ class Frame:
 
     image: float32 (height, width, 3) linear HDR radiance; png: the tone-mapped PNG (exposure
     applied); seconds: wall time of propagate (0 when the solution was at hand), render and
-    encode; resolution: propagation cells of the solution used.
+    encode; resolution: propagation cells of the solution used; exposure: the stops the PNG
+    was made with (the control's, plus the auto exposure when the scene's is "auto").
     """
 
     image: np.ndarray
@@ -51,6 +54,7 @@ class Frame:
     seconds: dict
     propagated: bool
     resolution: int
+    exposure: float = 0.0
 
     @property
     def width(self) -> int:
@@ -99,6 +103,8 @@ class Engine:
         cam = self.base.camera
         self.size = {FULL: (cam.width, cam.height),
                      DRAFT: (max(1, round(cam.width * draft_scale)), max(1, round(cam.height * draft_scale)))}
+        self.exposure_auto = self.base.method.exposure == "auto"
+        self.tone = self.base.method.tone
         self.initial = S.initial_settings(self.base)
         d0 = self.initial.camera_distance
         self.distance_range = (d0 / 100.0, d0 * 100.0)
@@ -118,7 +124,15 @@ class Engine:
         w, h = self.size[level]
         values = S.scene_values(self.base, settings, w, h)
         method = self.method if level == FULL else self.draft_method
-        return S.build_scene(self.base, values, self._medium(values), replace(method, exposure=settings.exposure))
+        exposure = "auto" if self.exposure_auto else settings.exposure
+        return S.build_scene(self.base, values, self._medium(values), replace(method, exposure=exposure))
+
+    def exposure_of(self, settings: S.Settings, image: np.ndarray) -> float:
+        """The stops the PNG of ``image`` is made with: the control's, plus the auto exposure of
+        ``image`` when the scene's exposure is "auto"."""
+        if self.exposure_auto:
+            return settings.exposure + auto_exposure(image, tone=self.tone)
+        return settings.exposure
 
     def frame(self, settings: S.Settings, level: str = FULL) -> Frame:
         """Render ``settings`` at ``level``, propagating only if no valid solution is at hand."""
@@ -129,10 +143,12 @@ class Engine:
         image = render(scene, solution)
         self.renders += 1
         t2 = time.perf_counter()
-        png = encode_png(image, settings.exposure)
+        exposure = self.exposure_of(settings, image)
+        png = encode_png(image, exposure, self.tone)
         t3 = time.perf_counter()
         f = Frame(image, png, level, settings, {"propagate": t1 - t0 if propagated else 0.0,
-                                                 "render": t2 - t1, "encode": t3 - t2}, propagated, res)
+                                                 "render": t2 - t1, "encode": t3 - t2}, propagated, res,
+                  exposure)
         if level == FULL:
             self.last_full = f
         return f
@@ -168,11 +184,17 @@ class Engine:
     # -- saving --------------------------------------------------------------------------------
 
     def toml_data(self, settings: S.Settings) -> dict:
-        """The scene file (as a dict) that ``popvol render`` turns into the full view."""
+        """The scene file (as a dict) that ``popvol render`` turns into the full view (its
+        exposure: the stops of the full frame, see :meth:`exposure_of`)."""
         w, h = self.size[FULL]
         values = S.scene_values(self.base, settings, w, h)
-        return S.scene_toml(self.data, self.base_dir, values, replace(self.method, exposure=settings.exposure),
+        exposure = self._full_frame(settings).exposure if self.exposure_auto else settings.exposure
+        return S.scene_toml(self.data, self.base_dir, values, replace(self.method, exposure=exposure),
                             self.base)
+
+    def _full_frame(self, settings: S.Settings) -> Frame:
+        f = self.last_full
+        return f if f is not None and f.settings == settings else self.frame(settings, FULL)
 
     def save(self, settings: S.Settings, folder) -> tuple[Path, Path]:
         """Write the full view as PNG and its scene as TOML in ``folder`` under the first free
@@ -181,9 +203,7 @@ class Engine:
         folder = Path(folder)
         if not folder.is_dir():
             raise PopvolError(f"save folder {folder} does not exist")
-        f = self.last_full
-        if f is None or f.settings != settings:
-            f = self.frame(settings, FULL)
+        f = self._full_frame(settings)
         for n in range(1, 100_000):
             png, toml = folder / f"popvol-view-{n:03d}.png", folder / f"popvol-view-{n:03d}.toml"
             if not png.exists() and not toml.exists():
@@ -196,14 +216,14 @@ class Engine:
             toml.write_text(header + tomli_w.dumps(self.toml_data(settings)))
         except OSError as e:
             raise PopvolError(f"{toml}: cannot write ({e})") from None
-        write_image(png, f.image, settings.exposure)
+        write_image(png, f.image, f.exposure, self.tone)
         return png, toml
 
 
-def encode_png(image: np.ndarray, exposure: float) -> bytes:
-    """PNG bytes of the tone-mapped float32 (H, W, 3) ``image`` (fast compression: the pixels
-    are those ``popvol.write_image`` writes)."""
+def encode_png(image: np.ndarray, exposure, tone: str = "aces") -> bytes:
+    """PNG bytes of the tone-mapped float32 (H, W, 3) ``image`` (``exposure`` in stops or
+    "auto", ``tone``; fast compression: the pixels are those ``popvol.write_image`` writes)."""
     from PIL import Image
     buf = io.BytesIO()
-    Image.fromarray(tonemap(image, exposure), "RGB").save(buf, format="PNG", compress_level=1)
+    Image.fromarray(tonemap(image, exposure, tone), "RGB").save(buf, format="PNG", compress_level=1)
     return buf.getvalue()

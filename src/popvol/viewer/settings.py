@@ -54,7 +54,9 @@ class Settings:
     density multiplies the scene's medium scale; intensity multiplies the key light's power
     (the sun's irradiance, or without a sun the first point light's intensity); albedo and g
     replace the medium's (None: keep the scene's own, e.g. an RGB albedo or a per-voxel g);
-    exposure is the PNG exposure in stops. sun_* are None when the scene has no sun.
+    exposure is the PNG exposure in stops; when the scene's exposure is "auto" it is an offset
+    on the auto exposure of each frame (popvol.io.images.auto_exposure), so 0 = "auto". sun_*
+    are None when the scene has no sun.
     """
 
     camera_azimuth: float
@@ -228,7 +230,12 @@ def initial_settings(scene) -> Settings:
     albedo = float(med.albedo[0]) if not med.albedo_per_voxel and np.ptp(med.albedo) == 0 else None
     g = None if med.g_per_voxel else float(med.g)
     return Settings(az, max(-89.0, min(89.0, el)), float(np.linalg.norm(cam.origin - cam.target)),
-                    sun_az, sun_el, 1.0, albedo, g, 1.0, float(scene.method.exposure))
+                    sun_az, sun_el, 1.0, albedo, g, 1.0, _exposure_setting(scene.method.exposure))
+
+
+def _exposure_setting(exposure) -> float:
+    """The exposure control's start: the scene's stops, or offset 0 on "auto"."""
+    return 0.0 if isinstance(exposure, str) else float(exposure)
 
 
 def scene_values(base, s: Settings, width: int, height: int) -> dict:
