@@ -42,8 +42,8 @@ class Scene:
 # ---------------------------------------------------------------------------------------------
 
 _TOP_KEYS = {"medium", "lights", "light", "background", "camera", "method", "experimental"}
-_MEDIUM_KEYS = {"type", "file", "grid", "resolution", "seed", "extent", "scale", "albedo", "g",
-                "voxel_size", "origin"}
+_MEDIUM_KEYS = {"type", "file", "grid", "resolution", "seed", "extent", "style", "time", "scale", "albedo",
+                "g", "voxel_size", "origin"}
 #: Environment lights (popvol.envmap): split into directional lights when loaded.
 _ENVIRONMENT_KEYS = {"envmap": {"type", "file", "scale", "lights"},
                      "sky": {"type", "zenith", "horizon", "ground", "lights"}}
@@ -156,7 +156,7 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
         if isinstance(optics.get(key), dict):
             optics[key] = _optics_grid(optics[key], key, m, src, base)
     if kind == "procedural":
-        from .procedural import DEMO_OPTICS, demo_medium
+        from .procedural import DEMO_OPTICS, STYLES, TIME_LIMIT, demo_medium
         unused = sorted({"file", "grid", "voxel_size", "origin"} & set(m))
         if unused:
             raise PopvolError(f"{src}: medium.{unused[0]} applies to a medium read from a file, not to "
@@ -169,13 +169,19 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
         if extent < 1e-5:
             raise PopvolError(f"{src}: medium.extent = {extent:g} must be at least 1e-05 (world units; finer "
                               "voxels are lost in the rounding of world positions)")
+        style = check.choice(m.get("style", STYLES[0]), "medium.style", src, STYLES)
+        time = check.number(m.get("time", 0.0), "medium.time", src, -TIME_LIMIT, TIME_LIMIT)
+        if time != 0 and style != "cumulus":
+            raise PopvolError(f"{src}: medium.time = {time:g} applies to medium.style = 'cumulus' only "
+                              f"(the '{style}' cloud does not move)")
         # scale 0 here: the optics, defaults included, are checked below against the scene's name
-        med = demo_medium(res, seed, extent, scale=0.0, field=f"{src}: medium.resolution = {res}")
+        med = demo_medium(res, seed, extent, scale=0.0, field=f"{src}: medium.resolution = {res}",
+                          style=style, time=time)
         return Medium(med.density, med.voxel_size, med.origin, source=src, **{**DEMO_OPTICS, **optics})
     from .io.volumes import read_volume
     if "file" not in m:
         raise PopvolError(f"{src}: medium.type = 'file' needs medium.file")
-    unused = sorted({"resolution", "seed", "extent"} & set(m))
+    unused = sorted({"resolution", "seed", "extent", "style", "time"} & set(m))
     if unused:
         raise PopvolError(f"{src}: medium.{unused[0]} applies to medium.type = 'procedural', not to a "
                           "medium read from a file")
@@ -269,15 +275,17 @@ def _path(value, name: str, src: str, base: Path) -> Path:
     return p if p.is_absolute() else base / p
 
 
-#: The built-in demo: the procedural cumulus lit by a sun behind it to the right, seen against a
-#: blue sky.
+#: The built-in demo: the procedural cumulus (style "cumulus") lit by a sun from the right and
+#: a little behind the camera, and by a blue sky (3 directional lights) that is also the
+#: background; examples/demo.toml is the same scene written out.
 DEMO_SCENE = {
-    "medium": {"type": "procedural", "resolution": 96, "seed": 7, "extent": 2.0,
-               "scale": 12.0, "albedo": 0.99, "g": 0.85},
-    "lights": [{"type": "directional", "direction": [-0.8, -0.45, 0.2],
-                "irradiance": [3.0, 2.9, 2.7]}],
-    "background": {"type": "constant", "radiance": [0.30, 0.45, 0.75]},
-    "camera": {"origin": [0.0, 0.7, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0,
+    "medium": {"type": "procedural", "style": "cumulus", "resolution": 96, "seed": 7, "extent": 2.0,
+               "scale": 40.0, "albedo": 0.99, "g": 0.85},
+    "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35],
+                "irradiance": [5.0, 4.85, 4.5]},
+               {"type": "sky", "zenith": [0.05, 0.12, 0.35], "horizon": [0.25, 0.33, 0.45],
+                "ground": [0.12, 0.13, 0.15], "lights": 3}],
+    "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "fov": 40.0,
                "width": 640, "height": 360},
-    "method": {"exposure": 0.5},
+    "method": {"resolution": 96},
 }
