@@ -125,18 +125,31 @@ def render(scene, output, exr, width, height, stats, **knobs):
 
 
 @cli.command()
-@click.option("--json", "json_out", type=click.Path(dir_okay=False), help="Write the figures as JSON.")
-@click.option("--quick", is_flag=True, help="Fewer repetitions (for smoke tests).")
-def bench(json_out, quick):
-    """Measure propagation and render throughput and the demo's end-to-end time."""
-    from .bench import run_benchmarks
+@click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Write the figures as JSON ('-': to stdout, the tables then go to stderr).")
+@click.option("--repeat", type=click.IntRange(min=1), default=None,
+              help="Timed runs per figure, after a warm-up (default 5; 2 with --quick).")
+@click.option("--data", type=click.Path(exists=True, file_okay=False),
+              help="Folder holding the WDAS volume (wdas_cloud_sixteenth_dense.npz, in it or in "
+                   "its npz/); default $POPVOL_DATA, else ../shared/data/volumes.")
+@click.option("--quick", is_flag=True, help="Small sizes and 2 runs (a smoke test, not comparable figures).")
+def bench(json_out, repeat, data, quick):
+    """Measure propagation and render throughput and each scene's time per stage: min / median
+    / max over repeated runs, with peak memory and the machine."""
+    from rich.console import Console
+    from .bench import print_report, run_benchmarks
     from .io.files import write_text_atomically
-    _check_outputs({"--json": (json_out, (".json",))}, [])
-    results = run_benchmarks(quick=quick, echo=lambda s: click.echo(s, err=True))
-    text = json.dumps(results, indent=2)
-    if json_out:
+    if json_out != "-":
+        _check_outputs({"--json": (json_out, (".json",))}, [])
+    results = run_benchmarks(quick=quick, repeat=repeat, data=data, echo=lambda s: click.echo(s, err=True))
+    text = json.dumps(_json_safe(results), indent=2, allow_nan=False)
+    to_stderr = json_out == "-"
+    console = Console(stderr=to_stderr, width=None if (sys.stderr if to_stderr else sys.stdout).isatty() else 160)
+    print_report(results, console)
+    if json_out == "-":
+        click.echo(text)
+    elif json_out:
         write_text_atomically(json_out, text)
-    click.echo(text)
 
 
 @cli.command("hg-figure")
