@@ -10,7 +10,9 @@ The whole pipeline in a few names::
     popvol.write_image("cloud.png", image, scene.method.exposure, scene.method.tone)
 
 ``write_image`` tone maps a PNG (exposure "auto" or stops; tone "aces", the ACES 2.0 SDR
-view through OpenColorIO, or "clip") and writes an EXR linear.
+view through OpenColorIO, or "clip") and writes an EXR linear. ``render_sequence(path,
+"1-48", "out/frame_####.png")`` renders the frames of an animated scene (docs/SCENE.md,
+"Sequences").
 """
 from .errors import PopvolError
 from .io.images import write_image
@@ -21,7 +23,8 @@ from .pipeline import solve
 from .renderer import render
 from .results import Solution
 from .scene import Scene, load_scene, scene_from_dict
+from .sequence import render_sequence
 
 __all__ = ["PopvolError", "Scene", "Method", "Medium", "DirectionalLight", "PointLight", "load_scene",
-           "scene_from_dict", "solve", "Solution", "render", "write_image"]
+           "scene_from_dict", "solve", "Solution", "render", "write_image", "render_sequence"]
 __version__ = "0.1.0"

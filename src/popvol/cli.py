@@ -60,13 +60,31 @@ def cli():
 @click.option("--height", type=int, help="Image height in pixels (overrides the scene).")
 @method_options("render")
 @click.option("--stats", type=click.Path(dir_okay=False), help="Write timings, iterations and energy budget as JSON.")
-def render(scene, output, exr, width, height, stats, **knobs):
-    """Render SCENE (a TOML file; the built-in demo cloud if omitted) to an image."""
+@click.option("--frames", help="Frames to render, e.g. 1-240, 1-240:2 or 1-10,20 (overrides the scene's); "
+                               "-o then needs a run of # for the frame number.")
+@click.option("--video", type=click.Path(dir_okay=False),
+              help="With frames: also assemble them into an MP4 (needs pip install 'popvol[video]').")
+@click.option("--workers", type=int, help="With frames: render on a local Dask cluster of N worker processes.")
+@click.option("--scheduler", help="With frames: render on the Dask cluster at this address (tcp://HOST:PORT).")
+@click.option("--no-warm-start", is_flag=True, help="With frames: solve every frame from scratch.")
+def render(scene, output, exr, width, height, stats, frames, video, workers, scheduler, no_warm_start, **knobs):
+    """Render SCENE (a TOML file; the built-in demo cloud if omitted) to an image, or the
+    frames of an animated scene (docs/SCENE.md, "Sequences") to one image per frame."""
     from .io.files import write_text_atomically
     from .io.images import write_image
     from . import solve
     from .renderer import render as render_image
     from .scene import load_scene
+    from .sequence import load_sequence
+
+    seq = load_sequence(scene) if (scene or frames) else None
+    if frames is not None or (seq is not None and seq.animated):
+        return _render_frames(seq, scene, output, exr, width, height, stats, frames, video, workers, scheduler,
+                              not no_warm_start, _method_overrides("render", knobs))
+    for option, value in (("--video", video), ("--workers", workers), ("--scheduler", scheduler),
+                          ("--no-warm-start", no_warm_start or None)):
+        if value is not None:
+            raise PopvolError(f"{option} applies to frames of a sequence; the scene has none (give --frames)")
 
     outputs = {"-o/--output": (output, (".png", ".exr")), "--exr": (exr, (".exr",)), "--stats": (stats, (".json",))}
     _check_outputs(outputs, [scene] if scene else [])
@@ -122,6 +140,105 @@ def render(scene, output, exr, width, height, stats, **knobs):
                f"[{solvers}, {its} iterations]"
                + (f", diffusion {seconds['diffusion']:.2f}" if sc.method.isotropic == "diffusion" else "")
                + f", render {t_render:.2f})")
+
+
+def _render_frames(seq, scene, output, exr, width, height, stats, frames, video, workers, scheduler, warm_start,
+                   knobs: dict) -> None:
+    """``popvol render`` of frames: popvol.sequence.render_sequence with a progress bar over the
+    frames, a line per frame, and --video / --stats (with the flicker figure) at the end."""
+    from .io.files import write_text_atomically
+    from . import sequence as sq
+    frame_list = seq.resolve_frames(frames, "--frames", "popvol render")
+    if len(frame_list) > 1 and not sq.has_pattern(output):
+        raise PopvolError(f"-o/--output {output}: {seq.source} has {len(frame_list)} frames "
+                          f"({sq.frames_text(frame_list)}); name the images with a run of # for the frame number "
+                          "(e.g. -o out/frame_####.png), or render one frame with --frames N")
+    sq.check_patterns(output, exr, frame_list)
+    _check_outputs({"--stats": (stats, (".json",)), "--video": (video, (".mp4",))}, [scene] if scene else [])
+    if video:
+        sq.import_video_writer()                     # before any work: a missing extra is one line
+    if workers is not None and scheduler is not None:
+        raise PopvolError("--workers and --scheduler exclude each other: a local cluster or a running one")
+    if workers is not None and not 1 <= workers <= 1024:
+        raise PopvolError(f"--workers {workers} must be in [1, 1024]")
+    client = None
+    if workers is not None or scheduler is not None:
+        try:
+            from . import distributed
+        except ImportError as e:
+            raise PopvolError(f"--workers/--scheduler need popvol.distributed and Dask ({e}); "
+                              "pip install 'popvol[distributed]'") from None
+        client = distributed.local_client(workers) if workers is not None else distributed.connect(scheduler)
+    overrides = {"width": width, "height": height, **knobs}
+    t0 = time.perf_counter()
+    warnings = {}
+
+    def report(r):
+        for w in r.get("warnings", []):
+            warnings.setdefault(w.split(": ", 1)[-1] if w.startswith("frame ") else w, w)
+        click.echo(_frame_line(r))
+
+    if client is not None:          # popvol.distributed shows its own progress bar over frames
+        try:
+            results = sq.render_sequence(scene, frame_list, output, client=client, warm_start=warm_start, exr=exr,
+                                         **overrides)
+        finally:
+            if workers is not None:
+                client.close()
+        for r in results:
+            report(r)
+    else:
+        with _progress() as bar:
+            task = bar.add_task("frames", total=len(frame_list), info="")
+
+            def on_frame(r):
+                bar.advance(task)
+                bar.update(task, info=f"frame {r['frame']}" + (" (skipped)" if r["skipped"] else ""))
+                report(r)
+
+            results = sq.render_sequence(scene, frame_list, output, warm_start=warm_start, exr=exr,
+                                         progress=on_frame, **overrides)
+    for w in warnings.values():
+        click.echo(f"popvol: warning: {w}", err=True)
+    sc = seq.scene(frame_list[0], **{k: v for k, v in overrides.items() if v is not None})
+    exposures = sorted({r["exposure"] for r in results if r["exposure"] is not None})
+    stops_video = None
+    if video:
+        stops_video = sq.write_video(video, results, sq.video_fps(seq.fps, frame_list), sc.method.exposure,
+                                     sc.method.tone)
+        click.echo(f"{video}: {len(results)} frames at {sq.video_fps(seq.fps, frame_list):g} fps")
+    total = time.perf_counter() - t0
+    rendered = [r for r in results if not r["skipped"]]
+    if stats:
+        flick = sq.flicker(scene, results, stops_video, **{k: v for k, v in overrides.items() if v is not None})
+        doc = {"scene": sc.source, "frames": results, "width": sc.camera.width, "height": sc.camera.height,
+               "fps": seq.fps, "method": vars(sc.method), "warm_start": warm_start,
+               "exposure": {"setting": sc.method.exposure,
+                            "stops": exposures[0] if len(exposures) == 1 else exposures,
+                            "metered_frame": results[0].get("metered_frame") if results else None,
+                            "video_stops": stops_video},
+               "flicker": flick,
+               "seconds": {"total": total, "rendered_frames": len(rendered),
+                           "mean_per_rendered_frame": (sum(r["seconds"]["total"] for r in rendered) / len(rendered)
+                                                       if rendered else None)}}
+        try:
+            write_text_atomically(stats, json.dumps(_json_safe(sq._json_safe(doc)), indent=2, allow_nan=False))
+        except OSError as e:
+            raise PopvolError(f"--stats {stats}: cannot write ({e.strerror or e})") from None
+    click.echo(f"{len(results)} frame{'s' if len(results) != 1 else ''} ({sq.frames_text(frame_list)}) in "
+               f"{total:.1f} s: {len(rendered)} rendered, {len(results) - len(rendered)} skipped "
+               "(already written for this scene and method)"
+               + (f", one exposure {exposures[0]:+.2f} stops" if len(exposures) == 1 else ""))
+
+
+def _frame_line(r: dict) -> str:
+    """One line about a rendered (or skipped) frame."""
+    if r["skipped"]:
+        return f"{r['path']}: frame {r['frame']} skipped (already written for this scene and method)"
+    s = r["seconds"]
+    return (f"{r['path']}: frame {r['frame']} in {s['total']:.2f} s (propagate {s.get('propagate', 0):.2f} "
+            f"[{', '.join(map(str, r['iterations']))} iterations], diffusion {s.get('diffusion', 0):.2f}, "
+            f"render {s.get('render', 0):.2f})" + (" [medium clipped]" if r.get("hidden") else ""))
 
 
 @cli.command()

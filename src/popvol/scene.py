@@ -8,6 +8,7 @@ Objects are chosen by ``type`` (as in Mitsuba 3). The schema, with every default
 """
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,15 +36,19 @@ class Scene:
     source: str = "<scene>"
     environment: object = None     # envmap.EnvMap: the background, and the source of some lights
     files: tuple[Path, ...] = ()   # the files it reads (medium, grids, maps), resolved
+    frame: int | None = None       # its frame of a sequence (popvol.sequence), None for a still scene
+    hidden: bool = False           # the frame is outside medium.frames and medium.mode = "clip" hides the medium
 
 
 # ---------------------------------------------------------------------------------------------
 # Loading
 # ---------------------------------------------------------------------------------------------
 
-_TOP_KEYS = {"medium", "lights", "light", "background", "camera", "method", "experimental"}
+_TOP_KEYS = {"medium", "lights", "light", "background", "camera", "method", "experimental", "sequence",
+             "keyframes"}
+#: frames, mode, offset: a file sequence's keys, read (and removed) by popvol.sequence.frame_data
 _MEDIUM_KEYS = {"type", "file", "grid", "resolution", "seed", "extent", "style", "time", "scale", "albedo",
-                "g", "voxel_size", "origin"}
+                "g", "voxel_size", "origin", "frames", "mode", "offset"}
 #: Environment lights (popvol.envmap): split into directional lights when loaded.
 _ENVIRONMENT_KEYS = {"envmap": {"type", "file", "scale", "lights"},
                      "sky": {"type", "zenith", "horizon", "ground", "lights"}}
@@ -51,15 +56,16 @@ _CAMERA_KEYS = {"origin", "target", "up", "fov", "width", "height"}
 _BACKGROUND_KEYS = {"type", "radiance"}
 
 
-def load_scene(path: str | Path | None = None, **overrides) -> Scene:
+def load_scene(path: str | Path | None = None, frame: int | None = None, **overrides) -> Scene:
     """Load a scene from a TOML file; ``None`` gives the built-in demo scene.
 
-    ``overrides`` replace camera fields (width, height, fov) and method fields, experimental ones
-    included, after loading, e.g. ``width=320, resolution=64, isotropic="walk"``; ``None``
-    values are ignored.
+    ``frame``: the frame of a sequence (docs/SCENE.md, "Sequences"; None: a sequence's first
+    frame, a still scene as written). ``overrides`` replace camera fields (width, height, fov)
+    and method fields, experimental ones included, after loading, e.g. ``width=320,
+    resolution=64, isotropic="walk"``; ``None`` values are ignored.
     """
     if path is None:
-        scene = scene_from_dict(DEMO_SCENE, source="<demo scene>")
+        scene = scene_from_dict(DEMO_SCENE, source="<demo scene>", frame=frame)
     else:
         p = Path(path)
         if not p.is_file():
@@ -70,7 +76,7 @@ def load_scene(path: str | Path | None = None, **overrides) -> Scene:
             raise PopvolError(f"{p}: cannot read scene file ({e})") from None
         except tomllib.TOMLDecodeError as e:
             raise PopvolError(f"{p}: invalid TOML ({e})") from None
-        scene = scene_from_dict(data, source=str(p), base_dir=p.parent)
+        scene = scene_from_dict(data, source=str(p), base_dir=p.parent, frame=frame)
     return apply_overrides(scene, **overrides) if overrides else scene
 
 
@@ -93,14 +99,24 @@ def apply_overrides(scene: Scene, **overrides) -> Scene:
     return scene
 
 
-def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".") -> Scene:
-    """Build and validate a :class:`Scene` from plain data (the TOML structure as a dict)."""
+def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = ".",
+                    frame: int | None = None) -> Scene:
+    """Build and validate a :class:`Scene` from plain data (the TOML structure as a dict).
+
+    A sequence (``[sequence]``, ``[[keyframes]]``, a medium file with a ``#`` run) or a given
+    ``frame`` builds that frame (None: the first), by :func:`popvol.sequence.frame_data`."""
     if not isinstance(data, dict):
         raise PopvolError(f"{source}: a scene must be a table/dict, got {type(data).__name__}")
     check.known_keys(data, _TOP_KEYS, "", source)
+    hidden = False
+    if frame is not None or "sequence" in data or "keyframes" in data or _is_file_sequence(data.get("medium")):
+        from .sequence import frame_data
+        data, hidden, frame = frame_data(data, frame, source, base_dir)
     if "medium" not in data:
         raise PopvolError(f"{source}: missing [medium] table")
     medium = _medium(check.table(data["medium"], "medium", source), source, Path(base_dir))
+    if hidden:                                 # clipped: the frame's box, without the medium
+        medium = dataclasses.replace(medium, density=np.zeros_like(medium.density))
 
     if "lights" in data and "light" in data:
         raise PopvolError(f"{source}: both [light] and [[lights]] are given; put every light in [[lights]]")
@@ -131,7 +147,15 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
     method = method_from_tables(data.get("method", {}), data.get("experimental", {}), source)
     camera = _camera(data.get("camera"), medium, source)
     files = tuple(_files(data, Path(base_dir)))
-    return Scene(medium, lights, camera, background, method, source, environment, files)
+    return Scene(medium, lights, camera, background, method, source, environment, files, frame, hidden)
+
+
+def _is_file_sequence(m) -> bool:
+    """A medium table whose file has a run of ``#`` or that has a file sequence's keys."""
+    if not isinstance(m, dict):
+        return False
+    return (isinstance(m.get("file"), str) and "#" in Path(m["file"]).name) or \
+        any(k in m for k in ("frames", "mode", "offset"))
 
 
 def _files(data, base: Path):
