@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from .diffusion import solve_diffusion
+from .diffusion import solve_diffusion, warm_guess
 from .domains import check_memory
 from .errors import PopvolError
 from .kernels.sampling import domain_to_world
@@ -30,9 +30,15 @@ def check_decay(medium, method) -> None:
                           f"Eq. 12) needs g >= 0, got g = {medium.g_min:g}; use decay = 'poisson'")
 
 
-def solve_light(medium, light, method, progress=None, channel: int = 0) -> DomainSolution:
+def solve_light(medium, light, method, progress=None, channel: int = 0, warm: DomainSolution | None = None
+                ) -> DomainSolution:
     """Build the light's domain, resample the medium (colour ``channel``) into it, walk unit
-    power and, with the diffusion stage, diffuse what was handed over."""
+    power and, with the diffusion stage, diffuse what was handed over.
+
+    ``warm``: the same light's domain solution from an earlier frame (see :func:`solve`): its
+    diffusion fluence is the conjugate-gradient solve's initial guess, resampled if the grid
+    moved, when its diffusion grid has the same shape (else cold; ``warm_note`` says why).
+    The walk always starts cold (see :func:`solve`)."""
     check_decay(medium, method)
     t0 = time.perf_counter()
     domain = light.domain(medium, method)
@@ -43,13 +49,32 @@ def solve_light(medium, light, method, progress=None, channel: int = 0) -> Domai
     if method.isotropic == "diffusion":
         t2 = time.perf_counter()
         hand = domain.hand_over(walk, optics, medium, method, channel)
+        x0 = None
+        if warm is not None:
+            prev = warm.result.diffusion
+            x0, ds.warm_note = warm_guess(prev, warm.diffusion_grid, hand.grid, hand.factor)
+            ds.warm = x0 is not None
         d = solve_diffusion(hand.Q0, hand.Q1, *hand.optics, hand.grid.h, rtol=0.1 * method.tolerance,
-                            factor=hand.factor)
+                            factor=hand.factor, x0=x0)
         walk.budget.add_diffusion(d, hand.faces, hand.lost)
         walk.diffusion, walk.handed = d, None
         ds.diffusion_grid = hand.grid
         walk.seconds_diffusion = time.perf_counter() - t2
+    elif warm is not None:
+        ds.warm_note = "cold: no diffusion stage (the walk always starts cold)"
     return ds
+
+
+def warm_domains(warm, scene) -> tuple[dict, str]:
+    """The previous frame's domain solutions a frame may warm-start from, by (light index,
+    channel), and why there are none: only when ``warm`` has as many lights (index i is then
+    taken to be the same light, moved or not)."""
+    if warm is None:
+        return {}, ""
+    n_prev = len(warm.directions)
+    if n_prev != len(scene.lights):
+        return {}, f"cold: previous solution has {n_prev} light(s), this scene {len(scene.lights)}"
+    return {(ds.light_index, ds.channel): ds for ds in warm.domains}, ""
 
 
 def voxels_seen(density: np.ndarray) -> np.ndarray:
@@ -102,9 +127,23 @@ def point_fields(domains: list[DomainSolution], n_lights: int, n_channels: int) 
     return pts
 
 
-def solve(scene, progress=None, reuse: Solution | None = None) -> Solution:
+def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | None = None) -> Solution:
     """Propagate every light of ``scene`` (and every colour channel of a chromatic medium);
     returns the fields the renderer needs.
+
+    ``warm``: the previous frame's solution of an animation (None: cold, the solve as without
+    it, bit for bit). A domain warm-starts when ``warm`` has as many lights and a domain of the
+    same light index, channel and kind whose diffusion grid has the same shape: its diffusion
+    fluence is the initial guess of the conjugate-gradient solve (resampled if the grid moved;
+    the method may differ). The CG stops on the true residual relative to ||b||, so the frame
+    is the cold frame within the solver tolerance however different the previous one was (a
+    cut costs iterations, not accuracy). The walk always starts cold: it is not a linear fixed
+    point (the energy-weighted merge of lobes and the per-packet hand-over make it
+    non-additive: walking two halves of the light apart and adding the fields differs from
+    walking it together by about ten times what the tolerance leaves, scripts/
+    warm_start_study.py), and its packets cannot carry the signed residual a warm start would
+    have to propagate. ``stats()["domains"][i]["warm"]`` says whether domain i was
+    warm-started, ``"warm_note"`` why not (or that it was resampled).
 
     ``reuse``: an earlier solution. Lights that it solved for the same medium and method
     (their power may differ: fields are per unit power) are copied from it instead of
@@ -134,6 +173,7 @@ def solve(scene, progress=None, reuse: Solution | None = None) -> Solution:
     old = {}
     if reuse is not None and reuse.key == key:
         old = {(ds.light.key(), ds.channel): ds for ds in reuse.domains}
+    prev_domains, cold_note = warm_domains(warm, scene)
     needed = voxels_seen(med.density)
     sols = []
     seconds = dict.fromkeys(("resample", "propagate", "diffusion", "fields"), 0.0)
@@ -145,10 +185,22 @@ def solve(scene, progress=None, reuse: Solution | None = None) -> Solution:
                 phi[i, ch], phia[i, ch], direct[i, ch] = reuse.phi[j, ch], reuse.phia[j, ch], reuse.direct[j, ch]
                 if diffusion:
                     phid[i, ch], flux[i, ch] = reuse.phid[j, ch], reuse.flux[j, ch]
-                sols.append(dataclasses.replace(prev, light=light, light_index=i, reused=True))
+                sols.append(dataclasses.replace(prev, light=light, light_index=i, reused=True, warm=False,
+                                                warm_note="reused" if warm is not None else ""))
                 continue
             cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
-            ds = solve_light(med, light, scene.method, cb, ch)
+            w, note = None, cold_note
+            if warm is not None and not cold_note:
+                w = prev_domains.get((i, ch))
+                if w is None:
+                    note = f"cold: no previous domain of light {i}, channel {ch}"
+                elif w.light.type != light.type:
+                    w, note = None, f"cold: previous light {i} is a {w.light.type} light"
+                elif w.result.diffusion is None:
+                    w, note = None, "cold: previous domain has no diffusion solve"
+            ds = solve_light(med, light, scene.method, cb, ch, w)
+            if warm is not None and w is None:
+                ds.warm_note = note
             ds.light_index = i
             t0 = time.perf_counter()
             ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))

@@ -87,6 +87,8 @@ class DomainSolution:
     light_index: int = 0       # which of the scene's lights
     reused: bool = False       # copied from an earlier solution (pipeline.solve's ``reuse``)
     diffusion_grid: object = None   # domains.DirectionalDomain of the diffusion stage
+    warm: bool = False         # its diffusion solve started from an earlier frame's (pipeline.solve's ``warm``)
+    warm_note: str = ""        # why it was not warm-started, or how (empty without ``warm``)
 
     @property
     def direct(self) -> np.ndarray | None:
@@ -101,6 +103,8 @@ class DomainSolution:
                 "seconds_resample": self.seconds_resample, "seconds_propagate": r.seconds,
                 "seconds_diffusion": r.seconds_diffusion,
                 "diffusion_iterations": r.diffusion.iterations if r.diffusion else 0,
+                "diffusion_residual": r.diffusion.residual if r.diffusion else 0.0,
+                "warm": self.warm, "warm_note": self.warm_note,
                 "budget_per_unit_irradiance": r.budget.as_dict()}
 
 
