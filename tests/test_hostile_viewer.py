@@ -17,7 +17,7 @@ from popvol.viewer import settings as S
 from popvol.viewer.engine import FULL, Engine
 from popvol.viewer.server import MAX_MESSAGE, running
 
-from test_viewer import connect, receive, write_small_scene
+from test_viewer import connect, receive, write_sequence_scene, write_small_scene
 
 HOSTILE = [
     '{"type": "set", "settings": {"density": 1' + "0" * 400 + "}}",
@@ -52,7 +52,7 @@ json_values = st.recursive(
               st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=20)),
     lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=12), inner, max_size=4)),
     max_leaves=15)
-setting_names = st.one_of(st.sampled_from(sorted(S.RANGES)), st.text(max_size=12))
+setting_names = st.one_of(st.sampled_from(sorted(S.RANGES) + ["frame"]), st.text(max_size=12))
 messages = st.one_of(
     json_values,
     st.fixed_dictionaries({"type": st.sampled_from(["set", "save"])},
@@ -62,16 +62,36 @@ messages = st.one_of(
 
 
 @settings(max_examples=200, deadline=None, derandomize=True)
-@given(messages, st.booleans(), st.booleans())
-def test_any_json_message_is_accepted_or_refused_with_one_line(msg, has_sun, has_key):
+@given(messages, st.booleans(), st.booleans(), st.sampled_from([None, [1, 3, 5], [0, 1, 2, 10]]))
+def test_any_json_message_is_accepted_or_refused_with_one_line(msg, has_sun, has_key, frames):
     text = json.dumps(msg)
     try:
-        m = S.parse_message(text, (0.1, 10.0), has_sun=has_sun, has_key=has_key)
+        m = S.parse_message(text, (0.1, 10.0), has_sun=has_sun, has_key=has_key, frames=frames)
     except PopvolError as e:
         check_one_line(str(e))
         return
     assert m.kind in ("set", "save")
-    assert all(name in S.RANGES and isinstance(v, float) for name, v in m.changes.items())
+    for name, v in m.changes.items():
+        if name == "frame":
+            assert frames is not None and type(v) is int and v in frames
+        else:
+            assert name in S.RANGES and isinstance(v, float)
+
+
+#: Hostile frames for the sequence of frames 1, 3, 5 (JSON text of the value).
+HOSTILE_FRAMES = ["-1", "1e400", '"a"', "7", "2", "3.5", "true", "null", "[3]", "1" + "0" * 400, "-1e400",
+                  "4.000000001"]
+
+
+@pytest.mark.parametrize("value", HOSTILE_FRAMES)
+def test_hostile_frames_are_refused_with_one_line(value):
+    text = '{"type": "set", "settings": {"frame": ' + value + "}}"
+    with pytest.raises(PopvolError) as e:
+        S.parse_message(text, (0.1, 10.0), has_sun=True, frames=[1, 3, 5])
+    check_one_line(str(e.value))
+    assert "must be one of the scene's frames (1-5:2)" in str(e.value)
+    with pytest.raises(PopvolError, match="this scene has no frames"):
+        S.parse_message(text, (0.1, 10.0), has_sun=True, frames=None)
 
 
 @settings(max_examples=200, deadline=None, derandomize=True)
@@ -103,3 +123,24 @@ def test_server_answers_every_hostile_message_and_stays_up(server):
         ws.send(json.dumps({"type": "set", "settings": {"g": 0.3}}))
         frame = receive(ws, "frame", level=FULL)
         assert frame["settings"]["g"] == 0.3
+
+
+@pytest.fixture(scope="module")
+def seq_server(tmp_path_factory):
+    scene = write_sequence_scene(tmp_path_factory.mktemp("hostile-seq"))
+    engine = Engine(scene, resolution=12, draft_resolution=8)
+    with running(engine, tmp_path_factory.mktemp("saves"), refine_delay=0.1) as url:
+        yield url
+
+
+def test_sequence_server_answers_hostile_frames_and_stays_up(seq_server):
+    with connect(seq_server) as ws:
+        receive(ws, "frame")
+        for value in HOSTILE_FRAMES:
+            ws.send('{"type": "set", "settings": {"frame": ' + value + "}}")
+            error = receive(ws, "error", timeout=30)["message"]
+            check_one_line(error)
+            assert "must be one of the scene's frames" in error, error
+        ws.send(json.dumps({"type": "set", "settings": {"frame": 5}}))
+        frame = receive(ws, "frame", level=FULL)
+        assert frame["frame"] == 5 and frame["version"] == 1        # none of the hostile ones counted

@@ -68,6 +68,63 @@ def write_small_scene(folder: Path) -> Path:
     return path
 
 
+SEQUENCE_SCENE = """
+[sequence]
+frames = "1-5:2"        # frames 1, 3, 5
+fps = 24
+
+[medium]
+type = "file"
+file = "../data/vol_###.npz"
+frames = "1-5"
+mode = "extend"
+scale = 3.0
+albedo = 0.9
+g = 0.6
+
+[[lights]]
+type = "directional"
+direction = [-0.6, -0.7, 0.3]
+irradiance = [2.0, 1.9, 1.7]
+
+[background]
+radiance = [0.2, 0.3, 0.5]
+
+[camera]
+origin = [0.4, 0.5, 2.6]
+target = [0.0, 0.0, 0.0]
+width = 48
+height = 28
+
+[method]
+resolution = 24
+exposure = 0.5
+
+[[keyframes]]
+frame = 1
+lights.0.direction = [-0.6, -0.7, 0.3]
+
+[[keyframes]]
+frame = 5
+lights.0.direction = [0.5, -0.7, 0.2]
+lights.0.irradiance = [3.0, 2.5, 2.0]
+"""
+
+
+def write_sequence_scene(folder: Path) -> Path:
+    """scenes/seq.toml: a sequence of frames 1, 3, 5 reading data/vol_001.npz ... vol_005.npz
+    (the blob of write_small_scene, denser and further along +x each frame), with the sun's
+    direction and irradiance keyframed and the camera free."""
+    write_small_scene(folder)
+    blob = np.load(folder / "data" / "blob.npz")
+    for n in range(1, 6):
+        np.savez(folder / "data" / f"vol_{n:03d}.npz", density=blob["density"] * (0.6 + 0.2 * n),
+                 voxel_size=np.array([0.1]), world_of_ijk_min=np.array([-0.95 + 0.05 * n, -0.95, -0.95]))
+    path = folder / "scenes" / "seq.toml"
+    path.write_text(SEQUENCE_SCENE)
+    return path
+
+
 @pytest.fixture(scope="module")
 def scene_path(tmp_path_factory):
     return write_small_scene(tmp_path_factory.mktemp("viewer"))
@@ -282,6 +339,148 @@ def test_view_resolution_scales_the_method():
     assert view_method(Method(resolution=32, diffusion_resolution=0), 16).diffusion_resolution == 0
 
 
+# -- sequences: the frame setting ----------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def seq_path(tmp_path_factory):
+    return write_sequence_scene(tmp_path_factory.mktemp("viewer-seq"))
+
+
+@pytest.fixture(scope="module")
+def seq_engine(seq_path):
+    return Engine(seq_path, resolution=24, draft_resolution=12)
+
+
+def test_frame_setting_is_checked_against_the_frames():
+    frames = [1, 3, 5]
+    m = S.parse_message('{"type": "set", "settings": {"frame": 3, "g": 0.2}}', (0.1, 10.0), True, True, frames)
+    assert m.changes == {"frame": 3, "g": 0.2} and isinstance(m.changes["frame"], int)
+    assert S.parse_message('{"type": "set", "settings": {"frame": 5.0}}', (0.1, 10.0), True, True,
+                           frames).changes == {"frame": 5}
+    for text in ('{"type": "set", "settings": {"frame": 2}}', '{"type": "set", "settings": {"frame": 7}}'):
+        with pytest.raises(PopvolError, match=r"frame = \d must be one of the scene's frames \(1-5:2\)"):
+            S.parse_message(text, (0.1, 10.0), True, True, frames)
+    with pytest.raises(PopvolError, match="this scene has no frames"):     # a still scene
+        S.parse_message('{"type": "set", "settings": {"frame": 1}}', (0.1, 10.0), True, True, None)
+
+
+def test_sequence_engine_loads_each_frame_with_the_controls_on_top(seq_engine, seq_path):
+    e = seq_engine
+    assert e.frames == [1, 3, 5] and e.initial.frame == 1
+    assert e.follows == S.SUN_KEYS                        # the sun is keyframed, the camera is not
+    assert e.frames_info() == {"first": 1, "last": 5, "step": 2, "count": 3, "runs": [[1, 5, 2]],
+                               "text": "1-5:2", "fps": 24.0}
+    s = replace(e.initial, frame=5, sun_azimuth=None, sun_elevation=None, density=2.0, camera_azimuth=20.0)
+    scene = e.scene_for(s)
+    own = popvol.load_scene(seq_path, frame=5)
+    assert scene.medium.density is e.frame_scene(5)[0].medium.density
+    assert np.array_equal(scene.medium.density, own.medium.density)          # frame 5's file
+    assert np.allclose(scene.medium.scale, 2.0 * own.medium.scale)           # density x 2 on top
+    assert np.allclose(scene.lights[0].direction, own.lights[0].direction, atol=1e-12)   # keyframed sun
+    assert np.allclose(scene.lights[0].irradiance, [3.0, 2.5, 2.0])
+    assert S.scene_angles(scene)["camera_azimuth"] == pytest.approx(20.0)      # the orbit holds
+    resolved = e.resolve(s)
+    assert resolved.frame == 5 and resolved.sun_azimuth == pytest.approx(S.scene_angles(own)["sun_azimuth"])
+    moved = e.scene_for(replace(s, sun_azimuth=10.0, sun_elevation=40.0))       # the user's sun, this frame
+    assert S.scene_angles(moved)["sun_azimuth"] == pytest.approx(10.0)
+    with pytest.raises(PopvolError, match="must be one of the scene's frames"):
+        e.frame(replace(s, frame=4), DRAFT)
+
+
+def test_frames_media_are_kept_in_a_small_bounded_cache(seq_path, monkeypatch):
+    from popvol.viewer import engine as E
+    e = Engine(seq_path, resolution=12, draft_resolution=8)
+    first = e.frame_scene(1)[0]
+    assert e.frame_scene(1)[0] is first is e.base                   # loaded once
+    third = e.frame_scene(3)[0]
+    assert e.frame_scene(3)[0] is third
+    monkeypatch.setattr(E, "MAX_FRAMES", 2)
+    e.frame_scene(5)
+    assert len(e._frames) == 2 and e.frame_scene(5)[0] is not None
+    assert e.frame_scene(1)[0] is not first                         # evicted, loaded again
+    monkeypatch.setattr(E, "MAX_FRAME_BYTES", first.medium.density.nbytes + 1)
+    e.frame_scene(3)
+    assert len(e._frames) == 1                                      # the memory bound: the newest only
+
+
+def test_a_frame_change_warm_starts_the_draft_from_the_previous_frame(seq_path, monkeypatch):
+    import functools
+    import inspect
+
+    from popvol.viewer import engine as E
+    if "warm" not in inspect.signature(popvol.solve).parameters:
+        pytest.skip("popvol.solve takes no warm start here")
+    calls = []
+    real = E.solve
+
+    @functools.wraps(real)
+    def recording(scene, **kw):
+        calls.append(kw)
+        return real(scene, **kw)
+
+    monkeypatch.setattr(E, "solve", recording)
+    e = Engine(seq_path, resolution=16, draft_resolution=8)
+    assert e.warm_start
+    s = replace(e.initial, sun_azimuth=None, sun_elevation=None)
+    e.frame(s, DRAFT)
+    assert calls[-1].get("warm") is None                           # nothing to start from
+    previous = e._last[8][0]
+    d = e.frame(replace(s, frame=3), DRAFT)                        # only the frame changed
+    assert calls[-1]["warm"] is previous
+    assert e.warm_solves == 1 and d.propagated
+    e.frame(replace(s, frame=3, density=2.0), DRAFT)               # the user changed the medium: cold
+    assert calls[-1].get("warm") is None
+    e.frame(replace(s, frame=5), FULL)                             # full frames are always cold
+    assert calls[-1].get("warm") is None and e.warm_solves == 1
+
+
+KEYED_CAMERA = """
+[sequence]
+frames = "0-2"
+fps = 10
+[medium]
+type = "procedural"
+resolution = 12
+scale = 20
+[[lights]]
+type = "point"
+position = [0.0, 1.5, 0.0]
+intensity = 2.0
+[camera]
+origin = [0, 0.5, 3]
+target = [0, 0.5, 0]
+width = 24
+height = 14
+[method]
+resolution = 12
+[[keyframes]]
+frame = 0
+camera.origin = [0, 0.5, 3]
+[[keyframes]]
+frame = 2
+camera.origin = [2, 1.0, 2]
+"""
+
+
+def test_a_keyframed_camera_follows_its_keyframes(tmp_path):
+    path = tmp_path / "cam.toml"
+    path.write_text(KEYED_CAMERA)
+    e = Engine(path, resolution=12, draft_resolution=8)
+    assert e.follows == S.CAMERA_KEYS and not e.has_sun
+    following = replace(e.initial, frame=2, camera_azimuth=None, camera_elevation=None, camera_distance=None)
+    cam = e.scene_for(following).camera
+    assert np.allclose(cam.origin, [2, 1.0, 2], atol=1e-9)
+    held = e.scene_for(replace(following, camera_azimuth=0.0, camera_elevation=0.0, camera_distance=3.0)).camera
+    assert np.allclose(held.origin, [0, 0.5, 3], atol=1e-9)         # the user's orbit, on this frame
+    # exposure = "auto" (the default): one exposure for every frame, the first full frame's
+    from popvol.io.images import auto_exposure
+    assert e.exposure_auto
+    first = e.frame(e.initial, FULL)
+    last = e.frame(following, FULL)
+    assert first.exposure == last.exposure == auto_exposure(first.image, tone=e.tone)
+    assert auto_exposure(last.image, tone=e.tone) != first.exposure
+
+
 # -- the server -----------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -351,6 +550,87 @@ def test_save_over_the_websocket(server, engine):
         scene = popvol.load_scene(saved["toml"])
         assert scene.medium.scale[0] == pytest.approx(6.0)
         assert Path(saved["png"]).is_file()
+
+
+def test_a_still_scene_refuses_a_frame(server):
+    with connect(server) as ws:
+        init = receive(ws, "init")
+        assert init["frames"] is None and init["follows"] == [] and init["settings"]["frame"] is None
+        assert receive(ws, "frame")["frame"] is None
+        ws.send(json.dumps({"type": "set", "settings": {"frame": 1}}))
+        assert "this scene has no frames" in receive(ws, "error")["message"]
+
+
+@pytest.fixture(scope="module")
+def seq_server(seq_engine, tmp_path_factory):
+    with running(seq_engine, tmp_path_factory.mktemp("seq-saves"), refine_delay=0.2) as url:
+        yield url
+
+
+def test_set_frame_brings_that_frame_with_the_controls_kept(seq_server, seq_engine):
+    with connect(seq_server) as ws:
+        init = receive(ws, "init")
+        assert init["frames"]["runs"] == [[1, 5, 2]] and init["follows"] == ["sun_azimuth", "sun_elevation"]
+        first = receive(ws, "frame")
+        assert first["frame"] == 1 and first["settings"]["frame"] == 1
+        ws.send(json.dumps({"type": "set", "settings": {"density": 1.5, "camera_azimuth": 40.0,
+                                                        "sun_azimuth": 5.0}}))
+        f = receive(ws, "frame", level=FULL)
+        assert f["frame"] == 1 and f["settings"]["sun_azimuth"] == 5.0 and f["follows"] == []
+        ws.send(json.dumps({"type": "set", "settings": {"frame": 5}}))
+        f = receive(ws, "frame", level=FULL)
+        own = S.scene_angles(popvol.load_scene(seq_engine.sequence.source, frame=5))
+        assert f["frame"] == 5 and f["settings"]["frame"] == 5 and f["version"] == 2
+        assert f["follows"] == ["sun_azimuth", "sun_elevation"]          # the keyframed sun is back
+        assert f["settings"]["sun_azimuth"] == pytest.approx(own["sun_azimuth"])
+        assert f["settings"]["density"] == 1.5 and f["settings"]["camera_azimuth"] == 40.0   # kept
+        ws.send(json.dumps({"type": "set", "settings": {"frame": 3, "sun_azimuth": -20.0}}))
+        f = receive(ws, "frame", level=FULL)                   # a sun set with the frame holds
+        assert f["frame"] == 3 and f["settings"]["sun_azimuth"] == -20.0 and f["follows"] == ["sun_elevation"]
+
+
+def test_scrubbing_frames_gives_drafts_then_the_full_frame(seq_server, seq_engine):
+    with connect(seq_server) as ws:
+        receive(ws, "frame")
+        renders = seq_engine.renders
+        scrub = [3, 5, 3, 1, 3, 5, 5, 3, 1, 3, 5, 3]
+        for n in scrub:
+            ws.send(json.dumps({"type": "set", "settings": {"frame": n}}))
+        frames = []
+        while True:
+            m = receive(ws, "frame")
+            frames.append(m)
+            if m["level"] == FULL:
+                break
+        assert all(f["level"] == DRAFT for f in frames[:-1]) and len(frames) >= 2
+        assert all((f["width"], f["height"]) == (24, 14) for f in frames[:-1])          # half the pixels
+        assert all(f["resolution"] in (12, 24) for f in frames[:-1])
+        last = frames[-1]
+        assert last["version"] == len(scrub) and last["frame"] == 3 and (last["width"], last["height"]) == (48, 28)
+        assert seq_engine.renders - renders == len(frames) < len(scrub)
+
+
+def test_saved_frame_renders_as_popvol_render_of_the_saved_toml(seq_engine, seq_path, tmp_path, monkeypatch):
+    import tomllib
+    s = replace(seq_engine.initial, frame=3, sun_azimuth=None, sun_elevation=None, camera_azimuth=25.0,
+                density=1.3, g=0.4, intensity=1.2, exposure=0.8)
+    view = seq_engine.frame(s, FULL)
+    assert view.settings.frame == 3
+    png, toml = seq_engine.save(s, tmp_path)
+    data = tomllib.loads(toml.read_text())
+    assert "sequence" not in data and "keyframes" not in data and "frames" not in data["medium"]
+    assert Path(data["medium"]["file"]) == (seq_path.parent.parent / "data" / "vol_003.npz").resolve()
+    assert "frame 3" in toml.read_text().splitlines()[1]
+    monkeypatch.chdir(tmp_path)
+    r = subprocess.run([sys.executable, "-m", "popvol.cli", "render", str(toml), "-o", "again.png"],
+                       capture_output=True, text=True, check=False)
+    assert r.returncode == 0, r.stderr
+    from PIL import Image
+    saved = np.asarray(Image.open(png))
+    assert np.array_equal(np.asarray(Image.open(tmp_path / "again.png")), saved)
+    assert np.array_equal(saved, np.asarray(Image.open(io.BytesIO(view.png))))
+    scene = popvol.load_scene(toml)
+    np.testing.assert_allclose(popvol.render(scene, popvol.solve(scene)), view.image, rtol=1e-5, atol=1e-6)
 
 
 def test_websocket_from_another_site_is_refused(server):

@@ -13,7 +13,7 @@ pytest.importorskip("starlette", reason="the viewer extra is not installed (pip 
 pytest.importorskip("uvicorn", reason="the viewer extra is not installed (pip install '.[viewer]')")
 sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install '.[test]')")
 
-from test_viewer import write_small_scene
+from test_viewer import write_sequence_scene, write_small_scene
 
 import popvol
 from popvol.viewer.engine import Engine
@@ -160,3 +160,46 @@ def test_saved_toml_renders_the_image_the_page_shows(page, viewer):
     from popvol.io.images import tonemap
     image = popvol.render(scene, popvol.solve(scene))
     assert np.array_equal(tonemap(image, scene.method.exposure), shown)
+
+
+@pytest.fixture(scope="module")
+def seq_viewer(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("browser-seq")
+    engine = Engine(write_sequence_scene(folder), resolution=16, draft_resolution=8)
+    with running(engine, folder, refine_delay=0.2) as url:
+        yield url, engine
+
+
+def test_a_sequence_shows_the_frame_slider_and_play_advances_the_frame(browser, page, seq_viewer):
+    assert page.locator("#sequence-controls").is_hidden()             # the still scene: no controls
+    assert page.locator("#play").is_hidden()
+    url, engine = seq_viewer
+    seq = browser.new_page(viewport={"width": 1000, "height": 700})
+    errors = []
+    seq.on("pageerror", lambda e: errors.append(str(e)))
+    try:
+        seq.goto(url)
+        wait_full_frame(seq, after=0)
+        assert seq.locator("#frame").is_visible() and seq.locator("#play").is_visible()
+        slider = seq.locator("#frame")
+        assert [slider.get_attribute(a) for a in ("min", "max", "step")] == ["1", "5", "2"]
+        assert seq.inner_text("#frame-out") == "1"
+        assert seq.inner_text("#readout").startswith("frame 1 of 1-5:2 · full")
+        seq.click("#play")
+        # the frame number shown advances 1 -> 3 -> 5 and loops back to 1
+        seq.wait_for_function("""() => {
+            const seen = (window.seenFrames ||= []);
+            const n = Number(document.getElementById('frame-out').textContent);
+            if (seen[seen.length - 1] !== n) seen.push(n);
+            return seen.join(',').includes('3,5,1');
+        }""", timeout=60_000)
+        assert re.match(r"frame [135] of 1-5:2 · draft 24×14", seq.inner_text("#readout"))
+        seq.click("#play")                                                # pause: the full frame follows
+        assert seq.get_attribute("#play", "aria-pressed") == "false"
+        shown = int(seq.inner_text("#frame-out"))
+        seq.wait_for_function(f"() => popvolView.lastFrame.level === 'full' && popvolView.lastFrame.frame === {shown}",
+                              timeout=60_000)
+        assert seq.inner_text("#readout").startswith(f"frame {shown} of 1-5:2 · full 48×28")
+        assert not errors, f"JavaScript errors on the page: {errors}"
+    finally:
+        seq.close()

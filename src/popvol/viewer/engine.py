@@ -11,11 +11,21 @@ Two levels of quality: "draft" (while the user drags: half the pixels per axis, 
 ray-marching step, and, if no full solution is at hand, a coarser propagation grid) and "full"
 (the view's own method and size, what Save writes and ``popvol render`` reproduces).
 
+A sequence (docs/SCENE.md, "Sequences") adds the ``frame`` setting: each frame's scene (its
+medium, keyframed lights and camera) is loaded by :mod:`popvol.sequence` and the last few are
+kept (:data:`MAX_FRAMES`, :data:`MAX_FRAME_BYTES`); the controls apply on top of it. Where the
+keyframes drive the camera or the sun, a setting of None means "the frame's own" (see
+:meth:`Engine.resolve`). A draft whose frame changed from the last solve (and nothing else that
+propagation depends on) is warm-started from that solution where ``popvol.solve`` takes
+``warm``; full frames are always solved cold, so they are bit for bit what ``popvol render``
+makes of the saved scene.
+
 An Engine is not thread-safe: the server calls it from one worker thread only.
 """
 from __future__ import annotations
 
 import copy
+import inspect
 import io
 import time
 import tomllib
@@ -30,11 +40,14 @@ from ..io.images import auto_exposure, tonemap, write_image
 from ..pipeline import solve
 from ..renderer import render
 from ..scene import DEMO_SCENE, load_scene
+from ..sequence import frames_text, load_sequence
 from . import settings as S
 
 DRAFT, FULL = "draft", "full"
 MAX_SOLUTIONS = 4                  # solutions kept for returning to earlier settings ...
 MAX_CACHE_BYTES = 512 * 2**20      # ... as long as their fields fit in this many bytes
+MAX_FRAMES = 8                     # frames' scenes (loaded media) kept for scrubbing back ...
+MAX_FRAME_BYTES = 256 * 2**20      # ... as long as their media's grids fit in this many bytes
 
 
 @dataclass
@@ -42,7 +55,8 @@ class Frame:
     """One rendered view.
 
     image: float32 (height, width, 3) linear HDR radiance; png: the tone-mapped PNG (exposure
-    applied); seconds: wall time of propagate (0 when the solution was at hand), render and
+    applied); seconds: wall time of load (building the view's scene, a sequence's frame loaded
+    from its files or generated), propagate (0 when the solution was at hand), render and
     encode; resolution: propagation cells of the solution used; exposure: the stops the PNG
     was made with (the control's, plus the auto exposure when the scene's is "auto").
     """
@@ -84,12 +98,20 @@ class Engine:
     the scene's camera). resolution: cells of the view's propagation domains (at most the
     scene's; the saved TOML keeps it). draft_resolution, draft_scale, draft_step: the draft's
     propagation cells, fraction of the pixels per axis and ray-marching step multiplier.
+
+    A sequence starts at its first frame; ``frames`` lists its frames (None: a still scene),
+    ``follows`` the settings its keyframes drive (reset to the frame's own on a frame change).
     """
 
     def __init__(self, path=None, width: int | None = None, height: int | None = None,
                  resolution: int = 64, draft_resolution: int = 32, draft_scale: float = 0.5,
                  draft_step: float = 2.0):
-        self.base = load_scene(path, width=width, height=height)
+        self.overrides = {k: v for k, v in (("width", width), ("height", height)) if v is not None}
+        self.sequence = load_sequence(path)
+        self.frames = self.sequence.frames if self.sequence.animated else None
+        if self.frames is not None:
+            self.sequence.check_files(self.frames)          # every missing file named now, not mid-play
+        self.base = load_scene(path, frame=None if self.frames is None else self.frames[0], **self.overrides)
         if path is None:
             self.data, self.base_dir = copy.deepcopy(DEMO_SCENE), Path.cwd()
         else:
@@ -105,94 +127,222 @@ class Engine:
                      DRAFT: (max(1, round(cam.width * draft_scale)), max(1, round(cam.height * draft_scale)))}
         self.exposure_auto = self.base.method.exposure == "auto"
         self.tone = self.base.method.tone
-        self.initial = S.initial_settings(self.base)
+        self.initial = replace(S.initial_settings(self.base), frame=self.base.frame if self.frames else None)
         d0 = self.initial.camera_distance
         self.distance_range = (d0 / 100.0, d0 * 100.0)
         self.has_sun = S.sun_index(self.base) is not None
         self.has_key = S.key_index(self.base) is not None
-        self._media = OrderedDict()         # medium values -> Medium (the last few)
+        self.follows = self._followed_keys()
+        self.warm_start = "warm" in inspect.signature(solve).parameters
+        self._frames = OrderedDict()        # frame data -> (Scene, medium token) (the last few)
+        if self.frames is not None:
+            self._frames[self._frame_key(self.frames[0])] = (self.base, self._medium_token(self.frames[0]))
+        self._media = OrderedDict()         # (medium token, medium values) -> Medium (the last few)
         self._solutions = OrderedDict()     # (propagation key, resolution) -> Solution
-        self._last = {}                     # resolution -> the last solution solved at it (reuse)
+        self._last = {}                     # resolution -> (the last solution solved at it, its frame, key)
+        self._stops = None                  # a sequence's held auto exposure (see exposure_of)
         self.solves = 0                     # propagations run (counted for tests and the page)
+        self.warm_solves = 0                # of which warm-started from the previous frame's
         self.renders = 0
         self.last_full: Frame | None = None
+
+    # -- sequences -----------------------------------------------------------------------------
+
+    def _followed_keys(self) -> tuple:
+        """The settings the keyframes drive: the camera's orbit if any keyframe sets a camera
+        field, the sun's angles if any keyframe sets the sun's direction."""
+        if self.frames is None:
+            return ()
+        keyed = {key for kf in self.sequence.keyframes for key in kf.values}
+        out = ()
+        if any(owner == "camera" for owner, _ in keyed):
+            out += S.CAMERA_KEYS
+        if self.has_sun and ((("lights", S.key_entry(self.data, self.base)), "direction") in keyed):
+            out += S.SUN_KEYS
+        return out
+
+    def _frame_key(self, frame: int) -> str:
+        data, hidden = self.sequence.frame_data(frame)
+        return repr((data, hidden))
+
+    def _medium_token(self, frame: int) -> str:
+        """What a frame's medium is made of (frames with the same token share one Medium)."""
+        data, hidden = self.sequence.frame_data(frame)
+        return repr((data.get("medium"), hidden))
+
+    def frame_scene(self, frame: int | None):
+        """(the Scene of ``frame`` as loaded, its medium token); the still scene for None.
+        The last few frames' scenes are kept (their media are the memory: MAX_FRAMES,
+        MAX_FRAME_BYTES); frames whose medium is made of the same data share one Medium."""
+        if self.frames is None:
+            if frame is not None:
+                raise PopvolError("setting 'frame': this scene has no frames; it is a still scene")
+            return self.base, "still"
+        S.check_frame(frame, self.frames, "frame")
+        key = self._frame_key(frame)
+        if key in self._frames:
+            self._frames.move_to_end(key)
+            return self._frames[key]
+        token = self._medium_token(frame)
+        scene = self.sequence.scene(frame, **self.overrides)
+        for other, other_token in self._frames.values():
+            if other_token == token:        # the same medium: share it (and solve's reuse sees it)
+                scene.medium = other.medium
+                break
+        self._frames[key] = (scene, token)
+        while len(self._frames) > 1 and (len(self._frames) > MAX_FRAMES or sum(
+                _medium_bytes(m) for m in {id(sc.medium): sc.medium for sc, _ in self._frames.values()}.values())
+                > MAX_FRAME_BYTES):
+            self._frames.popitem(last=False)
+        return scene, token
+
+    def resolve(self, settings: S.Settings) -> S.Settings:
+        """``settings`` with the frame filled in (a sequence's first for None) and every setting
+        that is None because keyframes drive it (camera orbit, sun angles) set to the frame's own."""
+        frame = settings.frame
+        if self.frames is not None and frame is None:
+            frame = self.frames[0]
+        missing = [k for k in self.follows if getattr(settings, k) is None]
+        if not missing:
+            return settings if frame == settings.frame else replace(settings, frame=frame)
+        angles = S.scene_angles(self.frame_scene(frame)[0])
+        return replace(settings, frame=frame, **{k: angles[k] for k in missing})
+
+    def frames_info(self) -> dict | None:
+        """The sequence's frames for the page: first, last, step (the smallest spacing), count,
+        runs ([start, stop, step], every member of an arithmetic run), text and fps; None for a
+        still scene."""
+        if self.frames is None:
+            return None
+        f = self.frames
+        runs, i = [], 0
+        while i < len(f):
+            j, step = i, (f[i + 1] - f[i] if i + 1 < len(f) else 1)
+            while j + 1 < len(f) and f[j + 1] - f[j] == step:
+                j += 1
+            runs.append([f[i], f[j], step])
+            i = j + 1
+        steps = [b - a for a, b in zip(f, f[1:])]
+        return {"first": f[0], "last": f[-1], "step": min(steps) if steps else 1, "count": len(f),
+                "runs": runs, "text": frames_text(f), "fps": self.sequence.fps}
 
     # -- frames --------------------------------------------------------------------------------
 
     def scene_for(self, settings: S.Settings, level: str = FULL):
         """The Scene the view renders at ``level`` (camera size and method of that level)."""
+        return self._scene_for(self.resolve(settings), level)[0]
+
+    def _scene_for(self, settings: S.Settings, level: str):
+        """(Scene, medium token) of resolved ``settings`` at ``level``."""
+        base, token = self.frame_scene(settings.frame)
         w, h = self.size[level]
-        values = S.scene_values(self.base, settings, w, h)
+        values = S.scene_values(base, settings, w, h)
         method = self.method if level == FULL else self.draft_method
         exposure = "auto" if self.exposure_auto else settings.exposure
-        return S.build_scene(self.base, values, self._medium(values), replace(method, exposure=exposure))
+        medium = self._medium(base.medium, token, values)
+        return S.build_scene(base, values, medium, replace(method, exposure=exposure)), token
 
-    def exposure_of(self, settings: S.Settings, image: np.ndarray) -> float:
+    def exposure_of(self, settings: S.Settings, image: np.ndarray, level: str = FULL) -> float:
         """The stops the PNG of ``image`` is made with: the control's, plus the auto exposure of
-        ``image`` when the scene's exposure is "auto"."""
-        if self.exposure_auto:
+        ``image`` when the scene's exposure is "auto". A sequence holds one auto exposure for
+        every frame (as ``popvol render`` does, so playing does not pump): the first full
+        frame's, metered when it is rendered (drafts before it meter themselves)."""
+        if not self.exposure_auto:
+            return settings.exposure
+        if self.frames is None:
             return settings.exposure + auto_exposure(image, tone=self.tone)
-        return settings.exposure
+        if self._stops is None:
+            stops = auto_exposure(image, tone=self.tone)
+            if level != FULL:
+                return settings.exposure + stops
+            self._stops = stops
+        return settings.exposure + self._stops
 
     def frame(self, settings: S.Settings, level: str = FULL) -> Frame:
-        """Render ``settings`` at ``level``, propagating only if no valid solution is at hand."""
+        """Render ``settings`` at ``level``, propagating only if no valid solution is at hand.
+        The Frame holds the resolved settings (frame and keyframe-driven values filled in)."""
         t0 = time.perf_counter()
-        scene = self.scene_for(settings, level)
-        solution, propagated, res = self._solution(scene, settings, level)
+        settings = self.resolve(settings)
+        scene, token = self._scene_for(settings, level)
+        tl = time.perf_counter()
+        solution, propagated, res = self._solution(scene, settings, level, token)
         t1 = time.perf_counter()
         image = render(scene, solution)
         self.renders += 1
         t2 = time.perf_counter()
-        exposure = self.exposure_of(settings, image)
+        exposure = self.exposure_of(settings, image, level)
         png = encode_png(image, exposure, self.tone)
         t3 = time.perf_counter()
-        f = Frame(image, png, level, settings, {"propagate": t1 - t0 if propagated else 0.0,
+        f = Frame(image, png, level, settings, {"load": tl - t0, "propagate": t1 - tl if propagated else 0.0,
                                                  "render": t2 - t1, "encode": t3 - t2}, propagated, res,
                   exposure)
         if level == FULL:
             self.last_full = f
         return f
 
-    def _medium(self, values: dict):
-        key = repr(values["medium"])
+    def _medium(self, base_medium, token: str, values: dict):
+        key = (token, repr(values["medium"]))
         if key not in self._media:
-            self._media[key] = S.build_medium(self.base.medium, values)
+            self._media[key] = S.build_medium(base_medium, values)
             while len(self._media) > 4:
                 self._media.popitem(last=False)
         self._media.move_to_end(key)
         return self._media[key]
 
-    def _solution(self, scene, settings: S.Settings, level: str):
-        """(solution with the scene's irradiance, whether it was propagated now, its cells)."""
-        full_key = (settings.propagation_key(), self.method.resolution)
-        keys = [full_key] if level == FULL else [full_key, (settings.propagation_key(), self.draft_method.resolution)]
+    def _solution(self, scene, settings: S.Settings, level: str, token: str = "still"):
+        """(solution with the scene's irradiance, whether it was propagated now, its cells).
+
+        Keyed by what propagation depends on: the frame's medium, the settings of the medium and
+        the sun, and every light's key (keyframed lights differ between frames)."""
+        pkey = (token, settings.propagation_key(), tuple(light.key() for light in scene.lights))
+        full_key = (pkey, self.method.resolution)
+        keys = [full_key] if level == FULL else [full_key, (pkey, self.draft_method.resolution)]
         for key in keys:
             if key in self._solutions:
                 self._solutions.move_to_end(key)
                 return self._solutions[key].relit(scene.lights), False, key[1]
         key = keys[-1]                      # the scene's own method has this level's cells
-        previous = self._last.get(key[1])
-        sol = solve(scene, reuse=previous)
+        previous, prev_frame, prev_user = self._last.get(key[1], (None, None, None))
+        user = self._user_key(settings)
+        kw = {}
+        if (level == DRAFT and self.warm_start and previous is not None and prev_frame != settings.frame
+                and prev_user == user):     # only the frame changed: start from the previous frame
+            kw["warm"] = previous
+            self.warm_solves += 1
+        sol = solve(scene, reuse=previous, **kw)
         self.solves += 1
-        self._last[key[1]] = sol
+        self._last[key[1]] = (sol, settings.frame, user)
         self._solutions[key] = sol
         while len(self._solutions) > 1 and (len(self._solutions) > MAX_SOLUTIONS or sum(
                 x.nbytes for x in self._solutions.values()) > MAX_CACHE_BYTES):
             self._solutions.popitem(last=False)
         return sol, True, key[1]
 
+    def _user_key(self, settings: S.Settings) -> tuple:
+        """The settings propagation depends on that the user sets (not the keyframes)."""
+        return tuple(None if k in self.follows else getattr(settings, k) for k in S.PROPAGATION_KEYS)
+
     # -- saving --------------------------------------------------------------------------------
 
     def toml_data(self, settings: S.Settings) -> dict:
         """The scene file (as a dict) that ``popvol render`` turns into the full view (its
-        exposure: the stops of the full frame, see :meth:`exposure_of`)."""
+        exposure: the stops of the full frame, see :meth:`exposure_of`). For a sequence, a still
+        scene of the current frame: the frame's own data (its medium file, procedural time,
+        keyframed lights and camera; no [sequence] or [[keyframes]]) with the view's values."""
+        settings = self.resolve(settings)
+        base, _ = self.frame_scene(settings.frame)
         w, h = self.size[FULL]
-        values = S.scene_values(self.base, settings, w, h)
+        values = S.scene_values(base, settings, w, h)
         exposure = self._full_frame(settings).exposure if self.exposure_auto else settings.exposure
-        return S.scene_toml(self.data, self.base_dir, values, replace(self.method, exposure=exposure),
-                            self.base)
+        data = self.data
+        if self.frames is not None:
+            data, hidden = self.sequence.frame_data(settings.frame)
+            if hidden:                      # clipped away: the nearest file's box, with no extinction
+                values["medium"]["scale"] = 0.0
+        return S.scene_toml(data, self.base_dir, values, replace(self.method, exposure=exposure), base)
 
     def _full_frame(self, settings: S.Settings) -> Frame:
+        settings = self.resolve(settings)
         f = self.last_full
         return f if f is not None and f.settings == settings else self.frame(settings, FULL)
 
@@ -210,14 +360,21 @@ class Engine:
                 break
         else:
             raise PopvolError(f"save folder {folder} already holds 99999 saved views")
+        settings = self.resolve(settings)
+        of = "" if self.frames is None else f", frame {settings.frame} (a still scene of that frame)"
         header = ("# Saved by `popvol view`; `popvol render THIS.toml -o view.png` renders the view again.\n"
-                  f"# Scene: {self.base.source}\n\n")
+                  f"# Scene: {self.base.source}{of}\n\n")
         try:
             toml.write_text(header + tomli_w.dumps(self.toml_data(settings)))
         except OSError as e:
             raise PopvolError(f"{toml}: cannot write ({e})") from None
         write_image(png, f.image, f.exposure, self.tone)
         return png, toml
+
+
+def _medium_bytes(medium) -> int:
+    """Bytes of a medium's grids (density, and per-voxel albedo or g)."""
+    return sum(np.asarray(v).nbytes for v in (medium.density, medium.albedo, medium.g))
 
 
 def encode_png(image: np.ndarray, exposure, tone: str = "aces") -> bytes:

@@ -4,10 +4,12 @@ Protocol (JSON text messages):
 
 page -> server
     {"type": "set", "settings": {"sun_azimuth": 30.0, ...}}   change some controls
+    {"type": "set", "settings": {"frame": 12}}                  a sequence's frame
     {"type": "save"}                                            save the full view (PNG + TOML)
 server -> page
-    {"type": "init", "settings": {...}, "ranges": {...}, ...}  once, on connecting
-    {"type": "frame", "png": base64, "level": "draft"|"full", "version": n, "seconds": {...}, ...}
+    {"type": "init", "settings": {...}, "ranges": {...}, "frames": {...} | null, "follows": [...], ...}
+    {"type": "frame", "png": base64, "level": "draft"|"full", "version": n, "frame": n | null,
+     "follows": [...], "seconds": {...}, ...}
     {"type": "saved", "png": path, "toml": path}
     {"type": "error", "message": "..."}                        a bad message; the server goes on
 
@@ -15,6 +17,10 @@ Latest request wins: each page has one pending-request slot, overwritten by ever
 worker thread (shared by all pages) renders. While messages arrive, frames are drafts; once
 none has arrived for ``refine_delay`` seconds after a draft, the same settings are rendered at
 full quality. A burst of messages therefore costs one frame per render time, never a queue.
+
+In a sequence, a frame change resets the settings the keyframes drive (``Engine.follows``: the
+camera's orbit, the sun's angles) to the new frame's own, unless the same message sets them;
+the frame messages carry their values and which of them follow the keyframes (``follows``).
 """
 from __future__ import annotations
 
@@ -80,7 +86,8 @@ class Session:
     async def handle(self, text):
         """Check one message and update the slot (never waits for a render)."""
         try:
-            m = S.parse_message(text, self.engine.distance_range, self.engine.has_sun, self.engine.has_key)
+            m = S.parse_message(text, self.engine.distance_range, self.engine.has_sun, self.engine.has_key,
+                                self.engine.frames)
         except PopvolError as e:
             await self.send_error(str(e))
             return
@@ -91,7 +98,11 @@ class Session:
         if m.kind == "save":
             self.save_wanted = self.settings
         else:
-            self.settings = replace(self.settings, **m.changes)
+            changes = m.changes
+            if "frame" in changes and changes["frame"] != self.settings.frame:
+                # keyframes win on a frame change (as in Blender); a change in this message holds
+                changes = {**{k: None for k in self.engine.follows}, **changes}
+            self.settings = replace(self.settings, **changes)
             self.version += 1
             self.slot = Request(self.version, self.settings, DRAFT)    # overwrites any pending one
         self.wake.set()
@@ -131,7 +142,8 @@ class Session:
                 log.exception("rendering failed")
                 await self.send_error(f"internal error while rendering ({type(e).__name__}: {e}); please report it")
                 continue
-            await self.ws.send_json(frame_message(frame, req.version, self.engine))
+            follows = [k for k in self.engine.follows if getattr(req.settings, k) is None]
+            await self.ws.send_json(frame_message(frame, req.version, self.engine, follows))
             refine = req if req.level == DRAFT else None
 
     async def send_error(self, message: str):
@@ -149,11 +161,15 @@ def init_message(engine: Engine) -> dict:
             "ranges": ranges, "has_sun": engine.has_sun, "has_key": engine.has_key,
             "size": list(engine.size[FULL]), "draft_size": list(engine.size[DRAFT]),
             "resolution": engine.method.resolution, "draft_resolution": engine.draft_method.resolution,
-            "camera_frame": S.orbit_frame(engine.base.camera.up).tolist()}
+            "camera_frame": S.orbit_frame(engine.base.camera.up).tolist(),
+            "frames": engine.frames_info(), "follows": list(engine.follows)}
 
 
-def frame_message(frame, version: int, engine: Engine) -> dict:
-    return {"type": "frame", "version": version, "level": frame.level,
+def frame_message(frame, version: int, engine: Engine, follows=()) -> dict:
+    """A rendered frame for the page; ``follows``: the settings whose values in it are the
+    keyframes' (the page adopts them unless it has changed them since)."""
+    return {"type": "frame", "version": version, "level": frame.level, "frame": frame.settings.frame,
+            "follows": list(follows),
             "width": frame.width, "height": frame.height, "resolution": frame.resolution,
             "propagated": frame.propagated, "seconds": frame.seconds,
             "solves": engine.solves, "renders": engine.renders,

@@ -15,6 +15,7 @@ Angles (degrees), with the world's +y as the sky's zenith:
 """
 from __future__ import annotations
 
+import bisect
 import copy
 import json
 import math
@@ -46,6 +47,14 @@ RANGES = {
 #: Settings that change the propagated light (the rest only change the rendering).
 PROPAGATION_KEYS = ("sun_azimuth", "sun_elevation", "density", "albedo", "g")
 
+#: The frame of a sequence: an integer among the scene's frames (not a range: checked against
+#: the frame list by :func:`parse_message`).
+FRAME = "frame"
+#: Settings that keyframes drive: a frame change resets them to the frame's own (None) when the
+#: scene keyframes the camera (the first three) or the sun's direction (the last two).
+CAMERA_KEYS = ("camera_azimuth", "camera_elevation", "camera_distance")
+SUN_KEYS = ("sun_azimuth", "sun_elevation")
+
 
 @dataclass(frozen=True)
 class Settings:
@@ -56,7 +65,9 @@ class Settings:
     replace the medium's (None: keep the scene's own, e.g. an RGB albedo or a per-voxel g);
     exposure is the PNG exposure in stops; when the scene's exposure is "auto" it is an offset
     on the auto exposure of each frame (popvol.io.images.auto_exposure), so 0 = "auto". sun_*
-    are None when the scene has no sun.
+    are None when the scene has no sun. frame: the frame of a sequence (None for a still
+    scene). In a sequence whose keyframes drive the camera or the sun, camera_* or sun_* may be
+    None: "the frame's own" (``Engine.resolve`` fills them in).
     """
 
     camera_azimuth: float
@@ -69,6 +80,7 @@ class Settings:
     g: float | None = None
     intensity: float = 1.0
     exposure: float = 0.0
+    frame: int | None = None
 
     def as_dict(self) -> dict:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -90,12 +102,14 @@ class Message:
     changes: dict
 
 
-def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_key: bool = True) -> Message:
+def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_key: bool = True,
+                  frames: list[int] | None = None) -> Message:
     """Check one websocket message from the page; raise a one-line PopvolError if it is bad.
 
     Accepted: ``{"type": "set", "settings": {name: number, ...}}`` (names and ranges in
-    RANGES) and ``{"type": "save"}``. has_sun / has_key: whether the scene has a sun to move
-    and a light whose intensity the page may change.
+    RANGES, and ``frame``) and ``{"type": "save"}``. has_sun / has_key: whether the scene has a
+    sun to move and a light whose intensity the page may change. frames: the sequence's frames
+    (increasing), which ``frame`` must be one of; None for a still scene, which refuses it.
     """
     if not isinstance(text, str):
         raise PopvolError("messages must be JSON text, got binary data")
@@ -119,8 +133,11 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_
         raise PopvolError("set message needs a non-empty object 'settings'")
     out = {}
     for name, value in changes.items():
+        if name == FRAME:
+            out[name] = check_frame(value, frames)
+            continue
         if name not in RANGES:
-            raise PopvolError(f"unknown setting {check._show(name)} (known: {', '.join(RANGES)})")
+            raise PopvolError(f"unknown setting {check._show(name)} (known: {', '.join(RANGES)}, {FRAME})")
         if name.startswith("sun_") and not has_sun:
             raise PopvolError(f"setting {check._show(name)}: this scene has no directional light to move")
         if name == "intensity" and not has_key:
@@ -130,6 +147,25 @@ def parse_message(text, distance_range: tuple[float, float], has_sun: bool, has_
             lo, hi = distance_range
         out[name] = check.number(value, name, "set message", lo, hi, open_)
     return Message("set", out)
+
+
+def check_frame(value, frames: list[int] | None, src: str = "set message") -> int:
+    """``value`` as one of ``frames`` (increasing frame numbers; None: a still scene, which has
+    no frames); a one-line PopvolError otherwise. Integral floats (12.0) are taken as integers."""
+    if frames is None:
+        raise PopvolError("setting 'frame': this scene has no frames (no [sequence], medium file "
+                          "sequence or [[keyframes]]); it is a still scene")
+    from ..sequence import frames_text
+    n = None
+    if check._is_int(value):
+        n = int(value)
+    elif check._is_real(value) and math.isfinite(value) and float(value).is_integer():
+        n = int(value)
+    i = bisect.bisect_left(frames, n) if n is not None else 0
+    if n is None or i == len(frames) or frames[i] != n:
+        raise PopvolError(f"{src}: frame = {check._show(value)} must be one of the scene's frames "
+                          f"({frames_text(frames)})")
+    return n
 
 
 def _one_line(e: Exception, limit: int = 200) -> str:
@@ -217,20 +253,28 @@ def _light_list(data: dict) -> list:
     return [lights] if isinstance(lights, dict) else list(lights)
 
 
-def initial_settings(scene) -> Settings:
-    """The controls' starting state: the scene as loaded."""
+def scene_angles(scene) -> dict:
+    """The camera's orbit (camera_azimuth, camera_elevation, camera_distance) and the sun's
+    angles (sun_azimuth, sun_elevation; None without a sun) of ``scene``, as the controls hold
+    them."""
     cam = scene.camera
-    frame = orbit_frame(cam.up)
-    az, el = angles_of(cam.origin - cam.target, frame)
+    az, el = angles_of(cam.origin - cam.target, orbit_frame(cam.up))
     sun_az = sun_el = None
     i = sun_index(scene)
     if i is not None:
         sun_az, sun_el = angles_of(-scene.lights[i].direction, SKY)
+    return {"camera_azimuth": az, "camera_elevation": max(-89.0, min(89.0, el)),
+            "camera_distance": float(np.linalg.norm(cam.origin - cam.target)),
+            "sun_azimuth": sun_az, "sun_elevation": sun_el}
+
+
+def initial_settings(scene) -> Settings:
+    """The controls' starting state: the scene as loaded (its ``frame`` for a sequence)."""
     med = scene.medium
     albedo = float(med.albedo[0]) if not med.albedo_per_voxel and np.ptp(med.albedo) == 0 else None
     g = None if med.g_per_voxel else float(med.g)
-    return Settings(az, max(-89.0, min(89.0, el)), float(np.linalg.norm(cam.origin - cam.target)),
-                    sun_az, sun_el, 1.0, albedo, g, 1.0, _exposure_setting(scene.method.exposure))
+    return Settings(**scene_angles(scene), density=1.0, albedo=albedo, g=g, intensity=1.0,
+                    exposure=_exposure_setting(scene.method.exposure), frame=scene.frame)
 
 
 def _exposure_setting(exposure) -> float:

@@ -5,6 +5,9 @@
 const $ = (id) => document.getElementById(id);
 const view = {            // the page's state, also read by the browser tests
   socket: null, settings: null, ranges: null, frames: 0, lastFrame: null, errors: [],
+  sent: 0,                // "set" messages sent (the server numbers the frames it answers by them)
+  sequence: null,         // a sequence's frames (init's "frames"), null for a still scene
+  playing: false,
 };
 window.popvolView = view;
 
@@ -30,7 +33,16 @@ function connect() {
 }
 
 function send(obj) {
-  if (view.socket && view.socket.readyState === WebSocket.OPEN) view.socket.send(JSON.stringify(obj));
+  if (view.socket && view.socket.readyState === WebSocket.OPEN) {
+    view.socket.send(JSON.stringify(obj));
+    if (obj.type === "set") view.sent += 1;
+  }
+}
+
+function flush() {                    // send the pending changes now
+  const settings = pending;
+  pending = {};
+  if (Object.keys(settings).length) send({ type: "set", settings });
 }
 
 function change(values) {             // merge into the pending message, send on the next frame
@@ -40,9 +52,7 @@ function change(values) {             // merge into the pending message, send on
     flushScheduled = true;
     requestAnimationFrame(() => {
       flushScheduled = false;
-      const settings = pending;
-      pending = {};
-      if (Object.keys(settings).length) send({ type: "set", settings });
+      flush();
     });
   }
   syncControls();
@@ -63,6 +73,17 @@ function init(msg) {
     $("sun-controls").title = "this scene has no directional light (intensity scales its point light)";
   }
   if (!msg.has_key) $("intensity").disabled = true;
+  view.sequence = msg.frames;
+  if (msg.frames) {
+    const f = msg.frames, el = $("frame");
+    el.min = f.first; el.max = f.last; el.step = f.step;
+    const follows = [];
+    if (msg.follows.includes("camera_azimuth")) follows.push("camera");
+    if (msg.follows.includes("sun_azimuth")) follows.push("sun");
+    $("frames-text").textContent = `${f.count} frames (${f.text}) at ${f.fps} fps` +
+      (follows.length ? `; the ${follows.join(" and ")} follow${follows.length > 1 ? "" : "s"} the keyframes` : "");
+    $("sequence-controls").hidden = false;
+  }
   syncControls();
 }
 
@@ -70,17 +91,30 @@ function showFrame(msg) {
   view.frames += 1;
   view.lastFrame = msg;
   $("view").src = `data:image/png;base64,${msg.png}`;
+  if (msg.version >= view.sent) {     // the answer to the latest message: take what keyframes drive
+    let adopted = false;
+    for (const k of msg.follows || []) {
+      if (!(k in pending)) { view.settings[k] = msg.settings[k]; adopted = true; }
+    }
+    if (adopted) syncControls();
+  }
   const s = msg.seconds;
   const ms = (x) => `${(1000 * x).toFixed(0)} ms`;
+  const head = [];
+  if (msg.frame !== null && msg.frame !== undefined) head.push(`frame ${msg.frame} of ${view.sequence.text}`);
+  head.push(`${msg.level} ${msg.width}×${msg.height}`, `image ${view.frames}`);
   $("readout").textContent =
-    `frame ${view.frames} · ${msg.level} ${msg.width}×${msg.height}\n` +
+    `${head.join(" · ")}\n` +
+    (msg.frame !== null && msg.frame !== undefined && s.load >= 0.001 ? `loading the frame ${ms(s.load)}\n` : "") +
     `propagation ${msg.propagated ? ms(s.propagate) + ` (${msg.resolution} cells)` : "0 ms (reused)"}\n` +
     `rendering ${ms(s.render)} · encoding ${ms(s.encode)}`;
-  status(msg.level === "full" ? "full view" : "draft (refines when you stop)");
+  status(msg.level === "full" ? "full view" : view.playing ? "playing (drafts)" : "draft (refines when you stop)");
+  if (view.playing && msg.version >= view.playWaitFor) playStep();
 }
 
 function showError(message) {
   view.errors.push(message);
+  if (view.playing) setPlaying(false);  // a frame that failed would stall the loop: stop there
   const box = $("error");
   box.textContent = message;
   box.hidden = false;
@@ -112,12 +146,73 @@ function syncControls() {
     if (document.activeElement !== el) el.value = el.dataset.log ? Math.log10(Math.max(v, 1e-2)) : v;
     $(`${id}-out`).textContent = el.dataset.log ? v.toPrecision(3) : v.toFixed({ exposure: 1, albedo: 3, g: 3 }[id] ?? 2);
   }
+  if (view.sequence && s.frame !== null && s.frame !== undefined) {
+    if (document.activeElement !== $("frame")) $("frame").value = s.frame;
+    $("frame-out").textContent = s.frame;
+  }
   drawSky();
 }
 
 for (const id of SLIDERS) {
   $(id).addEventListener("input", () => change({ [id]: sliderValue(id) }));
 }
+
+// -- sequence: the frame slider and play -------------------------------------------------------
+
+function snapFrame(v) {               // the member of the sequence's frames nearest to v
+  let best = null, bestD = Infinity;
+  for (const [a, b, step] of view.sequence.runs) {
+    const c = Math.min(b, Math.max(a, a + Math.round((v - a) / step) * step));
+    if (Math.abs(c - v) < bestD) { best = c; bestD = Math.abs(c - v); }
+  }
+  return best;
+}
+
+function nextFrame(f) {               // the frame after f, the first after the last (looping)
+  for (const [a, b, step] of view.sequence.runs) {
+    if (f < a) return a;
+    if (f < b) return Math.min(b, a + (Math.floor((f - a) / step) + 1) * step);
+  }
+  return view.sequence.first;
+}
+
+let playTimer = null;
+view.playWaitFor = 0;                 // the message whose frame the next step waits for
+view.lastStep = 0;
+
+function setPlaying(on) {
+  view.playing = on;
+  const b = $("play");
+  b.textContent = on ? "❚❚ Pause" : "▶ Play";
+  b.setAttribute("aria-pressed", String(on));
+  clearTimeout(playTimer);
+  if (on) playStep(); else status("paused (the full view follows)");
+}
+
+// One step: the next frame is asked for once the previous one has arrived (so the server never
+// holds a stale frame), and never sooner than 1/fps after the previous step.
+function playStep() {
+  clearTimeout(playTimer);
+  const wait = Math.max(0, view.lastStep + 1000 / view.sequence.fps - performance.now());
+  playTimer = setTimeout(() => {
+    if (!view.playing || !view.settings) return;
+    view.lastStep = performance.now();
+    const frame = nextFrame(view.settings.frame);
+    Object.assign(view.settings, { frame });
+    Object.assign(pending, { frame });
+    flush();
+    view.playWaitFor = view.sent;
+    syncControls();
+  }, wait);
+}
+
+$("play").addEventListener("click", () => { if (view.sequence) setPlaying(!view.playing); });
+$("frame").addEventListener("input", () => {
+  if (view.playing) setPlaying(false);   // scrubbing takes over from play
+  const f = snapFrame(parseFloat($("frame").value));
+  $("frame").value = f;
+  change({ frame: f });
+});
 
 // -- sun: drag on the sky hemisphere, seen from above (+x right, +z down) -----------------------
 
