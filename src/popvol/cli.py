@@ -183,8 +183,7 @@ def _render_frames(seq, scene, output, exr, width, height, stats, frames, video,
             results = sq.render_sequence(scene, frame_list, output, client=client, warm_start=warm_start, exr=exr,
                                          **overrides)
         finally:
-            if workers is not None:
-                client.close()
+            client.close()          # a local cluster closes with its client; a remote one stays up
         for r in results:
             report(r)
     else:
