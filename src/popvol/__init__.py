@@ -14,6 +14,21 @@ view through OpenColorIO, or "clip") and writes an EXR linear. ``render_sequence
 "1-48", "out/frame_####.png")`` renders the frames of an animated scene (docs/SCENE.md,
 "Sequences").
 """
+import os as _os
+
+if "NUMBA_THREADING_LAYER" not in _os.environ:
+    # Numba's OpenMP layer unless the user chose one. Numba's default prefers TBB when a libtbb
+    # is present (Debian's python3-openvdb pulls in libtbb12 2021.8); with it, a test process
+    # that had run parallel kernels from several threads (viewer, Dask client) once spun in
+    # tbb::finalize at exit for 20 minutes. OpenMP is thread-safe too; set
+    # NUMBA_THREADING_LAYER=tbb to get TBB back.
+    import numba as _numba
+    try:
+        from numba.np.ufunc import omppool as _omppool  # noqa: F401  (present and loadable)
+        _numba.config.THREADING_LAYER = "omp"
+    except ImportError:
+        pass
+
 from .errors import PopvolError
 from .io.images import write_image
 from .lights import DirectionalLight, PointLight
