@@ -167,10 +167,67 @@ def trilinear(grid, q):
     return np.where(inside, out, 0.0)
 
 
-def render_pixel(scene, solution, px, py):
+def walk_lobes(p, pa, p_dir, mu, g):
+    """Twin of kernels.render.walk_lobes, whole arrays: phi_dir f_hg(mu; g) + (phi - phi_dir)
+    f_hg(mu; g A_rest), the unscattered part (a delta lobe, at most phi) lit apart."""
+    p, pa, p_dir, mu, g = np.broadcast_arrays(*(np.asarray(v, np.float64) for v in (p, pa, p_dir, mu, g)))
+    p_dir = np.where(p > 0, np.minimum(p_dir, p), 0.0)
+    val = np.where(p_dir > 0, p_dir * hg.f_hg(mu, np.clip(g, -0.9999, 0.9999)), 0.0)
+    rest, rest_a = p - np.maximum(p_dir, 0), pa - np.maximum(p_dir, 0)
+    A = np.divide(rest_a, rest, out=np.zeros(rest.shape), where=rest > 0)
+    return val + np.where(rest > 0, rest * hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)), 0.0)
+
+
+def diffuse_lobe(pd, J, d, g):
+    """Twin of kernels.render.diffuse_lobe, whole arrays: phi_d f_hg(-d . J/|J|; g min(|J| /
+    phi_d, 1/2)), phi_d / 4 pi where J = 0, 0 where phi_d <= 0; J and d (..., 3)."""
+    pd, g = np.asarray(pd, np.float64), np.asarray(g, np.float64)
+    J = np.asarray(J, np.float64)
+    jn = np.linalg.norm(J, axis=-1)
+    mu = -np.sum(J * d, axis=-1) / np.where(jn > 0, jn, 1.0)
+    A = np.minimum(jn / np.where(pd > 0, pd, 1.0), 0.5)
+    lobe = np.where(jn > 0, hg.f_hg(mu, g * A), 1 / (4 * np.pi))
+    return np.where(pd > 0, pd * lobe, 0.0)
+
+
+def _power(solution, l, c, n_ch):
+    """Light l's RGB power lighting channel c of its fields (a grey solution's one channel lights all)."""
+    return solution.irradiance[l] if n_ch == 1 else np.eye(3)[c] * solution.irradiance[l]
+
+
+def in_scattering_source(scene, solution):
+    """Twin of kernels.source.in_scattering_source: float64 (nx, ny, nz, 3), at the voxels the
+    renderer reads (pipeline.voxels_seen) L_s / sigma_s toward the camera of every term lit on
+    the medium's grid (the suns' walk and diffuse lobes, the point lights' diffuse lobes), with
+    the voxel's own view direction (x - c) / |x - c| and g; 0 elsewhere."""
+    from popvol.pipeline import voxels_seen
+    med = scene.medium
+    idx = np.moveaxis(np.indices(med.shape), 0, -1)
+    d = med.origin + idx * med.voxel_size - np.asarray(scene.camera.origin, float)
+    d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-300)
+    g = med.g.astype(np.float64) if med.g_per_voxel else np.full(med.shape, float(med.g))
+    n_ch = solution.phi.shape[1]
+    out = np.zeros(med.shape + (3,))
+    for l in range(len(solution.is_point)):
+        for c in range(n_ch):
+            val = np.zeros(med.shape)
+            if not solution.is_point[l]:
+                mu = -(d @ solution.directions[l])
+                val += walk_lobes(solution.phi[l, c], solution.phia[l, c], solution.direct[l, c], mu, g)
+            if solution.phid.shape[0]:
+                val += diffuse_lobe(solution.phid[l, c], np.moveaxis(solution.flux[l, c], 0, -1), d, g)
+            out += val[..., None] * _power(solution, l, c, n_ch)
+    return np.where(voxels_seen(med.density)[..., None], out, 0.0)
+
+
+def render_pixel(scene, solution, px, py, combined=True, source=None):
     """Twin of kernels.render.render_kernel for one pixel centre (no jitter): linear RGB (3,).
     Channel c of the fields (grey solutions have one) lights colour c; sigma_t, albedo and the
-    view transmittance are per colour."""
+    view transmittance are per colour. ``combined`` (as the renderer's): samples at least
+    renderer.NEAR_VOXELS voxels from the camera read the grid-lit terms from the combined source
+    (``source``, default :func:`in_scattering_source`) by trilinear interpolation, plus the
+    point lights' walk lobes; nearer ones, or all without ``combined``, are lit light by light."""
+    from popvol.renderer import NEAR_VOXELS
     med, cam, m = scene.medium, scene.camera, scene.method
     fwd, right, up = cam.basis()
     tan_half = np.tan(np.radians(cam.fov) / 2)
@@ -184,13 +241,18 @@ def render_pixel(scene, solution, px, py):
     t0 = max(0.0, np.nanmax(np.minimum(ta, tb)))
     t1 = np.nanmin(np.maximum(ta, tb))
     step = m.step * med.voxel_size.min()
+    near = NEAR_VOXELS * med.voxel_size.min()
+    if combined and source is None:
+        source = in_scattering_source(scene, solution)
     edge = np.asarray(med.shape) - 0.5
     n_ch = solution.phi.shape[1]
-    L, Tv, t = np.zeros(3), np.ones(3), t0
-    while t < t1:
+    L, Tv, i = np.zeros(3), np.ones(3), 0
+    while t0 + i * step < t1:
+        t = t0 + i * step          # the kernel's samples: t0 + (i + 1/2) step, the last segment cut at t1
         ds = min(step, t1 - t)
-        x = cam.origin + (t + 0.5 * ds) * d
-        t += ds
+        ts = t + 0.5 * ds
+        x = cam.origin + ts * d
+        i += 1
         q = np.clip((x - med.origin) / med.voxel_size, -0.5, edge)
         rho = float(trilinear(med.density, q))
         if rho <= 0:
@@ -198,10 +260,13 @@ def render_pixel(scene, solution, px, py):
         albedo = (float(trilinear(med.albedo, q)) * np.ones(3) if med.albedo_per_voxel
                   else np.asarray(med.albedo, float))
         g = float(trilinear(med.g, q)) if med.g_per_voxel else med.g
-        Ls = np.zeros(3)
+        from_source = combined and ts >= near
+        Ls = np.array([float(trilinear(source[..., k], q)) for k in range(3)]) if from_source else np.zeros(3)
         for l in range(len(solution.directions)):
+            if from_source and not solution.is_point[l]:
+                continue
             for c in range(n_ch):
-                E = solution.irradiance[l] if n_ch == 1 else np.eye(3)[c] * solution.irradiance[l]
+                E = _power(solution, l, c, n_ch)
                 w = solution.directions[l]
                 if solution.is_point[l]:      # its spherical domain holds r^2 phi; the lobe is radial
                     sol = next(o for o in solution.domains if o.light_index == l and o.channel == c)
@@ -216,22 +281,12 @@ def render_pixel(scene, solution, px, py):
                     p = float(trilinear(solution.phi[l, c], q))
                     pa = float(trilinear(solution.phia[l, c], q))
                     p_dir = float(trilinear(solution.direct[l, c], q))
-                mu = -np.dot(w, d)
                 # the unscattered part (a delta lobe along w) is lit apart from the rest
-                p_dir = min(p_dir, p) if p > 0 else 0.0
-                if p_dir > 0:
-                    Ls += p_dir * hg.f_hg(mu, np.clip(g, -0.9999, 0.9999)) * E
-                    p, pa = p - p_dir, pa - p_dir
-                if p > 0:
-                    A = pa / p
-                    Ls += p * hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)) * E
-                if solution.phid.shape[0]:             # the diffuse lobe, about its flux J
+                Ls += float(walk_lobes(p, pa, p_dir, -np.dot(w, d), g)) * E
+                if solution.phid.shape[0] and not from_source:     # the diffuse lobe, about its flux J
                     pd = float(trilinear(solution.phid[l, c], q))
-                    if pd > 0:
-                        J = np.array([float(trilinear(solution.flux[l, c, k], q)) for k in range(3)])
-                        jn = np.linalg.norm(J)
-                        lobe = 1 / (4 * np.pi) if jn == 0 else hg.f_hg(-np.dot(J, d) / jn, g * min(jn / pd, 0.5))
-                        Ls += pd * lobe * E
+                    J = np.array([float(trilinear(solution.flux[l, c, k], q)) for k in range(3)])
+                    Ls += float(diffuse_lobe(pd, J, d, g)) * E
         sigma_t = med.scale * rho
         T_seg = np.exp(-sigma_t * ds)
         L += np.where(sigma_t > 0, Tv * (1 - T_seg) * albedo * Ls, 0.0)

@@ -7,34 +7,49 @@ import numpy as np
 
 from .errors import PopvolError
 from .kernels.render import render_kernel
-from .pipeline import solve
+from .kernels.source import in_scattering_source
+from .pipeline import solve, voxels_seen
 from .results import Solution
 from .scene import Scene
 
 
-def render(scene: Scene, solution: Solution | None = None, jitter: bool = True) -> np.ndarray:
+#: voxels per edge of a block of the coarse occupancy grid (empty-space skipping)
+BLOCK = 8
+#: samples nearer the camera than this many (smallest) voxels are lit light by light, not from
+#: the combined source: there the view direction turns by more than 1/32 rad across a voxel
+NEAR_VOXELS = 32.0
+
+
+def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
+           combined: bool = True, skip: bool = True) -> np.ndarray:
     """Linear HDR image float32 (height, width, 3) of ``scene``.
 
     ``solution`` is the output of :func:`popvol.solve`; if omitted the scene is solved first.
-    Moving only the camera does not need a new solution.
+    Moving only the camera does not need a new solution. ``combined``: light the samples from
+    one in-scattering source built for this view (kernels/source.py), else light by light;
+    ``skip``: jump over empty blocks of the medium (the image is bitwise the same).
     """
     if solution is None:
         solution = solve(scene)
     cam = scene.camera
     out = np.zeros((cam.height, cam.width, 3), np.float32)
+    inputs = render_inputs(scene, solution, jitter, combined, skip)
     # rows go to threads one at a time: rows through the medium cost far more than the sky's
     with numba.parallel_chunksize(1):
-        render_kernel(*render_inputs(scene, solution, jitter), out)
+        render_kernel(*inputs, out)
     if not np.all(np.isfinite(out)):
         raise PopvolError("internal error: the rendered image has non-finite pixels; please report it "
                           f"with the scene ({scene.source})")
     return out
 
 
-def render_inputs(scene: Scene, solution: Solution, jitter: bool = True) -> tuple:
+def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combined: bool = True,
+                  skip: bool = True) -> tuple:
     """The render kernel's inputs but the image, packed as it takes them (kernels/render.py):
-    (medium, lights, grid, spherical, camera, march, background). The one place that packs
-    the scene and the solution's fields for the kernel."""
+    (medium, lights, grid, spherical, view, camera, march, background). The one place that
+    packs the scene and the solution's fields for the kernel; with ``combined`` it builds the
+    view's combined in-scattering source (so its cost is part of rendering), with ``skip`` the
+    coarse occupancy grid."""
     med = scene.medium
     cam = scene.camera
     m = scene.method
@@ -42,8 +57,10 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True) -> tupl
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
                           else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
+    seen = voxels_seen(med.density)
+    blocks = occupied_blocks(seen, BLOCK) if skip else np.zeros((0, 0, 0), bool)
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
-              med.origin, med.voxel_size, lo, hi)
+              med.origin, med.voxel_size, lo, hi, blocks, BLOCK)
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
               np.ascontiguousarray(solution.irradiance, np.float64),
               np.ascontiguousarray(solution.positions, np.float64))
@@ -52,8 +69,29 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True) -> tupl
     spherical = (pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full)
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
+    source = np.zeros((0, 0, 0, 3), np.float32)
+    if combined and (not solution.is_point.all() or solution.phid.shape[0] > 0):
+        source = np.zeros(med.density.shape + (3,), np.float32)
+        in_scattering_source(medium, lights, grid, spherical, np.asarray(cam.origin, np.float64),
+                             seen, source)
+    view = (source, float(NEAR_VOXELS * med.voxel_size.min()))
     march = (float(m.step * med.voxel_size.min()), int(m.spp), int(m.seed), bool(jitter))
-    return medium, lights, grid, spherical, camera, march, background_map(scene)
+    return medium, lights, grid, spherical, view, camera, march, background_map(scene)
+
+
+def occupied_blocks(seen: np.ndarray, block: int) -> np.ndarray:
+    """bool (ceil(nx / block), ...): whether block b (voxels [block b, block (b + 1)) along each
+    axis) has density > 0 within one voxel of it, from ``seen`` = pipeline.voxels_seen(density).
+    Where not, the density's trilinear value is 0 at every point whose clamped cell index lies
+    in the block, with a voxel to spare (the stencil of such a point reads voxels
+    [block b, block (b + 1)] only)."""
+    m = seen
+    for axis in range(3):             # any over voxels [block b, block (b + 1)], inclusive
+        n = m.shape[axis]
+        parts = [np.take(m, np.arange(b, min(b + block + 1, n)), axis=axis).any(axis=axis, keepdims=True)
+                 for b in range(0, n, block)]
+        m = np.concatenate(parts, axis=axis)
+    return np.ascontiguousarray(m)
 
 
 def background_map(scene: Scene) -> np.ndarray:

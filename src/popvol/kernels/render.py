@@ -21,11 +21,26 @@ the unscattered light, and only interpolation across a shadow edge can put it be
 Each march segment of length ds uses sigma_t at a jittered point inside it and integrates T_v
 exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
 
+Two shortcuts, neither changing which samples are taken:
+- A combined source. The camera ray's direction at a point x is (x - c) / |x - c|, a function
+  of x alone, so every term lit on the medium's grid (a sun's walk and diffuse lobes, a point
+  light's diffuse lobe) is summed once per frame at the voxels into one RGB field
+  (kernels/source.py), and a sample reads that field's trilinear value (one lookup) plus the
+  point lights' walk lobes, instead of 3 + 4 lookups per light and channel. The field
+  interpolates the product, not the fields, and its phase is evaluated at voxel centres, so the
+  image changes slightly (docs/METHOD.md, "Rendering"); samples nearer the camera than ``near``,
+  where the view direction turns fast across a voxel, are lit light by light.
+- Empty-space skipping. A coarse grid says which blocks of voxels have density within one
+  voxel of them; a sample of zero density in an empty block jumps to the first sample past the
+  block. Samples sit at t0 + (i + jt) step, not at an accumulated t, so the jump leaves every
+  other sample where it was: the image is bitwise the same without the grid.
+
 The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` builds them):
-  medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi)
+  medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block)
   lights     (is_point, direction, power, position)
   grid       (phi, phia, direct, phid, flux)                the fields on the medium's grid
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
+  view       (source, near)                                 the combined source, if any
   camera     (origin, basis, tan_half, width, height)
   march      (step, spp, seed, jitter)
 (types in :func:`render_kernel`). NumPy twin: tests/twins.py (render_pixel).
@@ -263,34 +278,38 @@ def grid_fields(grid, l, c, corners):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def light_channel(grid, spherical, l, c, corners, geometry, d, g):
+def light_channel(grid, spherical, l, c, corners, geometry, d, g, walk, diffuse):
     """phi_l f_hg of light l in channel c at the sample, per unit power: the walk's light
-    (:func:`walk_lobes`, its fields divided by r^2 for a point light) plus the diffusion
-    stage's (:func:`diffuse_lobe`); ``geometry`` from :func:`light_geometry`, ``corners`` the
-    sample's stencil on the medium's grid, d the camera ray, g the phase's anisotropy."""
+    (:func:`walk_lobes`, its fields divided by r^2 for a point light) if ``walk``, plus the
+    diffusion stage's (:func:`diffuse_lobe`) if ``diffuse``; ``geometry`` from
+    :func:`light_geometry`, ``corners`` the sample's stencil on the medium's grid, d the camera
+    ray, g the phase's anisotropy."""
     point, mu, inv_r2, q0, q1, q2 = geometry
-    if point:
-        p, pa, pdir = point_lookup(spherical[FIELDS], spherical[OFFSET][l, c], spherical[SHAPE][l],
-                                   q0, q1, q2, spherical[FULL][l])
-    else:
-        p, pa, pdir = grid_fields(grid, l, c, corners)
-    val = walk_lobes(p, pa, pdir, mu, g) * inv_r2
-    if grid[PHID].shape[0] > 0:
+    val = 0.0
+    if walk:
+        if point:
+            p, pa, pdir = point_lookup(spherical[FIELDS], spherical[OFFSET][l, c], spherical[SHAPE][l],
+                                       q0, q1, q2, spherical[FULL][l])
+        else:
+            p, pa, pdir = grid_fields(grid, l, c, corners)
+        val = walk_lobes(p, pa, pdir, mu, g) * inv_r2
+    if diffuse and grid[PHID].shape[0] > 0:
         val += diffuse_lobe(grid[PHID][l, c], grid[FLUX][l, c], corners, d, g)
     return val
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def light_in_scattering(lights, grid, spherical, l, corners, x, d, g):
+def light_in_scattering(lights, grid, spherical, l, corners, x, d, g, walk=True, diffuse=True):
     """Light l's term of L_s / sigma_s at the sample x (RGB): E_l phi_l f_hg(d_l . -d; g A_l),
-    split into the lobes of docs/METHOD.md Eq. 23-24 (see :func:`light_channel`); a grey
-    medium's one channel is scaled by the light's RGB power."""
+    split into the lobes of docs/METHOD.md Eq. 23-24 (see :func:`light_channel`; ``walk`` and
+    ``diffuse`` select the lobes); a grey medium's one channel is scaled by the light's RGB
+    power."""
     power = lights[POWER]
     geometry = light_geometry(lights, spherical, l, x, d)
     n_ch = grid[PHI].shape[1]
     v0 = v1 = v2 = 0.0
     for c in range(n_ch):
-        v = light_channel(grid, spherical, l, c, corners, geometry, d, g)
+        v = light_channel(grid, spherical, l, c, corners, geometry, d, g, walk, diffuse)
         if c == 0:
             v0 = v
         elif c == 1:
@@ -300,6 +319,28 @@ def light_in_scattering(lights, grid, spherical, l, corners, x, d, g):
     if n_ch == 1:
         v1 = v2 = v0
     return v0 * power[l, 0], v1 * power[l, 1], v2 * power[l, 2]
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def interpolate_rgb(grid, corners):
+    """Trilinear RGB value of ``grid`` (nx, ny, nz, 3) on the stencil ``corners`` (as
+    sampling.interpolate, the three channels of a corner side by side in memory)."""
+    i0, i1, j0, j1, k0, k1, fx, fy, fz = corners
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w01 = (1.0 - fx) * fy
+    w10 = fx * (1.0 - fy)
+    w11 = fx * fy
+    out0 = out1 = out2 = 0.0
+    for a in range(8):
+        i = i1 if a & 4 else i0
+        j = j1 if a & 2 else j0
+        k = k1 if a & 1 else k0
+        w = (w11 if a & 2 else w10) if a & 4 else (w01 if a & 2 else w00)
+        w *= fz if a & 1 else 1.0 - fz
+        out0 += w * grid[i, j, k, 0]
+        out1 += w * grid[i, j, k, 1]
+        out2 += w * grid[i, j, k, 2]
+    return out0, out1, out2
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -318,7 +359,7 @@ def medium_at(medium, x):
     """The medium at the world point x: (corners, rho, g, sigma_t, albedo) with ``corners`` the
     trilinear stencil of x on the medium's grid, rho the density, g the phase's anisotropy, and
     sigma_t = scale rho and the albedo per RGB channel (3-tuples); all 0 where rho <= 0."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     corners = cell_corners((x[0] - origin[0]) / voxel[0], (x[1] - origin[1]) / voxel[1],
                            (x[2] - origin[2]) / voxel[2], density.shape)
     rho = interpolate(density, corners)
@@ -332,30 +373,90 @@ def medium_at(medium, x):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def march_ray(medium, lights, grid, spherical, o, d, segments):
+def _block_axis(x, o, h, n, size, n_blocks, d):
+    """Along one axis: the block holding the world coordinate x (grid origin o, voxel h, n
+    voxels, blocks of ``size`` voxels, ``n_blocks`` of them; indices clamped to the grid as the
+    trilinear stencil is) and the distance along the ray (direction component d) to the block's
+    face it leaves by (1e300 for the grid's outer blocks, which reach to the box's face)."""
+    b = int(min(max((x - o) / h, 0.0), n - 1.0)) // size
+    if d > 0.0 and b < n_blocks - 1:
+        return b, (o + size * (b + 1) * h - x) / d
+    if d < 0.0 and b > 0:
+        return b, (o + size * b * h - x) / d
+    return b, 1e300
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def empty_block_exit(medium, x, d):
+    """Empty-space skipping: the distance along the ray d from the point x to where it leaves
+    x's block of the coarse occupancy grid, if that block is empty (no density within one voxel
+    of it, so the density's trilinear value is 0 everywhere in it); -1 if it is not, or
+    without the grid (blocks of shape (0, 0, 0))."""
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    if blocks.shape[0] == 0:
+        return -1.0
+    s = density.shape
+    bx, ex = _block_axis(x[0], origin[0], voxel[0], s[0], block, blocks.shape[0], d[0])
+    by, ey = _block_axis(x[1], origin[1], voxel[1], s[1], block, blocks.shape[1], d[1])
+    bz, ez = _block_axis(x[2], origin[2], voxel[2], s[2], block, blocks.shape[2], d[2])
+    if blocks[bx, by, bz]:
+        return -1.0
+    return max(min(ex, ey, ez), 0.0)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt): from t0 to t1
-    (its span in the medium's box) in segments of length step (the last one shorter), the
-    optics and fields taken at offset jt within each. Returns (L0, L1, L2, T0, T1, T2): the
-    radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md Eq. 24), and the view
-    transmittance T_v at the exit, 0 once it fell below T_MIN."""
-    t, t1, step, jt = segments
-    n_lights = lights[IS_POINT].shape[0]
+    (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1) step] (the last one
+    cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1, L2, T0,
+    T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md Eq. 24),
+    and the view transmittance T_v at the exit, 0 once it fell below T_MIN.
+
+    L_s / sigma_s: with a combined source (``view`` = (source, near), source of shape (nx, ny,
+    nz, 3)), its trilinear value plus the point lights' walk lobes at samples at least ``near``
+    from o, and light by light (:func:`light_in_scattering`) nearer; without one (shape (0, 0,
+    0, 3)), light by light everywhere. Samples in empty blocks (:func:`empty_block_exit`) are
+    skipped: their density is 0, so they add nothing, and the samples taken are the same."""
+    t0, t1, step, jt = segments
+    source, near = view
+    use_source = source.shape[0] > 0
+    is_point = lights[IS_POINT]
+    n_lights = is_point.shape[0]
     L0 = L1 = L2 = 0.0
     T0 = T1 = T2 = 1.0
-    while t < t1:
+    i = 0
+    while True:
+        t = t0 + i * step           # not accumulated: skipping samples leaves the others as they are
+        if t >= t1:
+            break
         ds = min(step, t1 - t)
         ts = t + jt * ds
-        t += ds
+        i += 1
         x = (o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2])
         corners, rho, g, sigma_t, albedo = medium_at(medium, x)
         if rho <= 0.0:
+            exit = empty_block_exit(medium, x, d)
+            if exit >= 0.0:
+                if ts + exit >= t1:
+                    break
+                # the first sample at or past the block's exit (the blocks hold one voxel of margin)
+                i = max(i, int(math.ceil((ts + exit - t0) / step - jt)))
             continue
         ls0 = ls1 = ls2 = 0.0
-        for l in range(n_lights):
-            e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g)
-            ls0 += e0
-            ls1 += e1
-            ls2 += e2
+        if use_source and ts >= near:
+            ls0, ls1, ls2 = interpolate_rgb(source, corners)
+            for l in range(n_lights):
+                if is_point[l]:
+                    e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, False)
+                    ls0 += e0
+                    ls1 += e1
+                    ls2 += e2
+        else:
+            for l in range(n_lights):
+                e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, True)
+                ls0 += e0
+                ls1 += e1
+                ls2 += e2
         L0, T0 = march_segment(L0, T0, sigma_t[0], ds, albedo[0], ls0)
         L1, T1 = march_segment(L1, T1, sigma_t[1], ds, albedo[1], ls1)
         L2, T2 = march_segment(L2, T2, sigma_t[2], ds, albedo[2], ls2)
@@ -365,14 +466,16 @@ def march_ray(medium, lights, grid, spherical, o, d, segments):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def render_kernel(medium, lights, grid, spherical, camera, march, background, out):
+def render_kernel(medium, lights, grid, spherical, view, camera, march, background, out):
     """Render into ``out`` float32 (height, width, 3), linear radiance: per pixel the mean over
     its samples of the march's L + T_v L_background (docs/METHOD.md Eq. 24).
 
     medium: density float32 (nx, ny, nz); scale float64 (3,), sigma_t per channel = scale *
         density; albedo, g: float32 grids (1, 1, 1) or density-shaped; albedo_rgb float64 (3,),
         the albedo of channel c is albedo * albedo_rgb[c]; origin, voxel float64 (3,): the
-        centre of voxel (0, 0, 0) and the voxel size; lo, hi float64 (3,): the medium's box.
+        centre of voxel (0, 0, 0) and the voxel size; lo, hi float64 (3,): the medium's box;
+        blocks bool (ceil(nx / block), ...): whether any density is within one voxel of each
+        block of block^3 voxels (empty-space skipping; shape (0, 0, 0): none); block int.
     lights: is_point bool (n_lights,); direction float64 (n_lights, 3), the direction a sun's
         light travels; power float64 (n_lights, 3), RGB irradiance or intensity; position
         float64 (n_lights, 3), a point light's.
@@ -384,6 +487,9 @@ def render_kernel(medium, lights, grid, spherical, camera, march, background, ou
         domains: fields float32 (3, total), offset int64 (n_lights, n_channels), shape int64
         (n_lights, 3), params float64 (n_lights, 6), frame float64 (n_lights, 3, 3), full bool
         (n_lights,) (the renderer's PointFields).
+    view: source float32 (nx, ny, nz, 3), every term of L_s / sigma_s on the medium's grid
+        toward this camera (kernels/source.py), or (0, 0, 0, 3) to light sample by sample;
+        near float, the distance from the camera within which samples are lit light by light.
     camera: origin float64 (3,); basis float64 (3, 3), rows forward, right, up; tan_half, the
         tangent of half the vertical field of view; width, height in pixels.
     march: step in world units; spp samples per pixel; seed; jitter: hashed sub-pixel and
@@ -391,20 +497,22 @@ def render_kernel(medium, lights, grid, spherical, camera, march, background, ou
     background: float32 (1, 1, 3) (a constant) or (H, 2H, 3) (a lat-long environment map, see
         background_radiance).
     """
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     is_point, direction, power, position = lights
     phi, phia, direct, phid, flux = grid
     fields, offset, shape, params, frame, full = spherical
+    source, near = view
     o, basis, tan_half, width, height = camera
     step, spp, seed, jitter = march
     for py in nb.prange(height):
         # The bundles are rebuilt here from their arrays, so that the helpers read the arrays
         # themselves: with the bundles as passed in, the march took and dropped references to
         # their arrays (atomic counts) at every sample, about 1.2x slower.
-        medium_ = (density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi)
+        medium_ = (density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block)
         lights_ = (is_point, direction, power, position)
         grid_ = (phi, phia, direct, phid, flux)
         spherical_ = (fields, offset, shape, params, frame, full)
+        view_ = (source, near)
         camera_ = (o, basis, tan_half, width, height)
         march_ = (step, spp, seed, jitter)
         for px in range(width):
@@ -413,7 +521,7 @@ def render_kernel(medium, lights, grid, spherical, camera, march, background, ou
                 jx, jy, jt = pixel_sample(march_, px, py, s)
                 d = camera_ray(camera_, px + jx, py + jy)
                 t0, t1 = ray_box(o, d, lo, hi)
-                L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, o, d,
+                L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
                                                    (t0, t1, step, jt))
                 b0, b1, b2 = background_radiance(background, d)
                 acc0 += L0 + T0 * b0
