@@ -252,7 +252,7 @@ def test_combined_source_changes_the_image_little_with_three_suns():
     scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=48, h=32, peak_tau=4.0, albedo=0.95, g=0.8))
     scene.medium = cut_blob(peak_tau=4.0, albedo=0.95, g=0.8)
     sol = solve(scene)
-    combined, per_light = render(scene, sol), render(scene, sol, combined=False)
+    combined, per_light = render(scene, sol, combined=True), render(scene, sol, combined=False)
     m = metrics.compare(combined, per_light)
     print(f"relMSE {m['relmse']:.2g}, brightness x{m['brightness_ratio']:.5f}")
     assert m["relmse"] < 1e-4 and abs(m["brightness_ratio"] - 1) < 2e-3
@@ -267,13 +267,13 @@ def test_combined_source_with_a_point_light_and_a_sun():
     scene.medium = cut_blob(peak_tau=4.0, albedo=0.95, g=0.8)
     scene.lights.append(PointLight([0.3, 0.62, 0.45], [1.0, 0.8, 0.6]))
     sol = solve(scene)
-    combined, per_light = render(scene, sol), render(scene, sol, combined=False)
+    combined, per_light = render(scene, sol, combined=True), render(scene, sol, combined=False)
     m = metrics.compare(combined, per_light)
     print(f"relMSE {m['relmse']:.2g}, brightness x{m['brightness_ratio']:.5f}")
     assert m["relmse"] < 1e-4 and abs(m["brightness_ratio"] - 1) < 2e-3
     # the point light alone: its walk lobes dominate, and are read as before
     alone = dataclasses.replace(sol, irradiance=sol.irradiance * [[0.0], [1.0]])
-    m = metrics.compare(render(scene, alone), render(scene, alone, combined=False))
+    m = metrics.compare(render(scene, alone, combined=True), render(scene, alone, combined=False))
     assert m["relmse"] < 1e-4 and abs(m["brightness_ratio"] - 1) < 2e-3
 
 
@@ -285,7 +285,7 @@ def test_combined_source_is_not_used_next_to_the_camera():
     scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=48, h=32, peak_tau=20.0, albedo=0.95, g=0.8))
     scene.camera = Camera([0.5, 0.5, 0.55], [0.6, 0.55, 0.0], [0, 1, 0], 60.0, 48, 32)
     sol = solve(scene)
-    m = metrics.compare(render(scene, sol), render(scene, sol, combined=False))
+    m = metrics.compare(render(scene, sol, combined=True), render(scene, sol, combined=False))
     assert m["relmse"] < 1e-4 and abs(m["brightness_ratio"] - 1) < 2e-3
 
 
