@@ -4,7 +4,8 @@
 
 - supplement_fig1.png: f_hg and 2 pi F_hg for g = 0, 0.5, 0.9 (supplement Fig. 1);
 - demo.png: the built-in demo scene at 480x270 (what `popvol render -o cloud.png` draws);
-- wdas_sun.png: examples/wdas_sun.toml at 480x270, if ../shared data is beside the checkout;
+- wdas_front.png: examples/wdas_front.toml (the WDAS cloud, sun behind the camera, a sky) at
+  480x270, if ../shared data is beside the checkout;
 - demo_sky.png: examples/demo_sky.toml (the demo cloud under a sun and a sky) at 480x270;
 - demo_envmap.png: examples/demo_envmap.toml (the demo cloud under an HDR map) at 480x270;
 - smoke1_point.png: examples/smoke1_point.toml (a point light inside smoke) at 240x320.
@@ -22,7 +23,7 @@ def main():
     OUT.mkdir(parents=True, exist_ok=True)
     plot_supplement_figure(OUT / "supplement_fig1.png")
     print(OUT / "supplement_fig1.png")
-    scenes = {"demo.png": None, "wdas_sun.png": ROOT / "examples" / "wdas_sun.toml",
+    scenes = {"demo.png": None, "wdas_front.png": ROOT / "examples" / "wdas_front.toml",
               "demo_sky.png": ROOT / "examples" / "demo_sky.toml",
               "demo_envmap.png": ROOT / "examples" / "demo_envmap.toml",
               "smoke1_point.png": ROOT / "examples" / "smoke1_point.toml"}
