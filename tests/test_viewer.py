@@ -72,34 +72,8 @@ SEQUENCE_SCENE = """
 [sequence]
 frames = "1-5:2"        # frames 1, 3, 5
 fps = 24
-
-[medium]
-type = "file"
-file = "../data/vol_###.npz"
-frames = "1-5"
-mode = "extend"
-scale = 3.0
-albedo = 0.9
-g = 0.6
-
-[[lights]]
-type = "directional"
-direction = [-0.6, -0.7, 0.3]
-irradiance = [2.0, 1.9, 1.7]
-
-[background]
-radiance = [0.2, 0.3, 0.5]
-
-[camera]
-origin = [0.4, 0.5, 2.6]
-target = [0.0, 0.0, 0.0]
-width = 48
-height = 28
-
-[method]
-resolution = 24
-exposure = 0.5
-
+""" + SMALL_SCENE.replace('file = "../data/blob.npz"',
+                         'file = "../data/vol_###.npz"\nframes = "1-5"\nmode = "extend"') + """
 [[keyframes]]
 frame = 1
 lights.0.direction = [-0.6, -0.7, 0.3]

@@ -56,6 +56,20 @@ _CAMERA_KEYS = {"origin", "target", "up", "fov", "width", "height"}
 _BACKGROUND_KEYS = {"type", "radiance"}
 
 
+def read_scene_file(path) -> dict:
+    """The TOML of scene file ``path`` as a dict; a missing, unreadable or invalid file is a
+    one-line PopvolError naming it."""
+    p = Path(path)
+    if not p.is_file():
+        raise PopvolError(f"{p}: scene file not found" if not p.exists() else f"{p}: not a file")
+    try:
+        return tomllib.loads(p.read_text())
+    except (OSError, UnicodeDecodeError) as e:
+        raise PopvolError(f"{p}: cannot read scene file ({e})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise PopvolError(f"{p}: invalid TOML ({e})") from None
+
+
 def load_scene(path: str | Path | None = None, frame: int | None = None, **overrides) -> Scene:
     """Load a scene from a TOML file; ``None`` gives the built-in demo scene.
 
@@ -68,15 +82,7 @@ def load_scene(path: str | Path | None = None, frame: int | None = None, **overr
         scene = scene_from_dict(DEMO_SCENE, source="<demo scene>", frame=frame)
     else:
         p = Path(path)
-        if not p.is_file():
-            raise PopvolError(f"{p}: scene file not found" if not p.exists() else f"{p}: not a file")
-        try:
-            data = tomllib.loads(p.read_text())
-        except (OSError, UnicodeDecodeError) as e:
-            raise PopvolError(f"{p}: cannot read scene file ({e})") from None
-        except tomllib.TOMLDecodeError as e:
-            raise PopvolError(f"{p}: invalid TOML ({e})") from None
-        scene = scene_from_dict(data, source=str(p), base_dir=p.parent, frame=frame)
+        scene = scene_from_dict(read_scene_file(p), source=str(p), base_dir=p.parent, frame=frame)
     return apply_overrides(scene, **overrides) if overrides else scene
 
 

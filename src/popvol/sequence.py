@@ -31,7 +31,6 @@ import json
 import math
 import re
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -293,16 +292,9 @@ def load_sequence(path=None) -> Sequence:
     if path is None:
         from .scene import DEMO_SCENE
         return sequence_from_dict(DEMO_SCENE, "<demo scene>")
+    from .scene import read_scene_file
     p = Path(path)
-    if not p.is_file():
-        raise PopvolError(f"{p}: scene file not found" if not p.exists() else f"{p}: not a file")
-    try:
-        data = tomllib.loads(p.read_text())
-    except (OSError, UnicodeDecodeError) as e:
-        raise PopvolError(f"{p}: cannot read scene file ({e})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise PopvolError(f"{p}: invalid TOML ({e})") from None
-    return sequence_from_dict(data, str(p), p.parent)
+    return sequence_from_dict(read_scene_file(p), str(p), p.parent)
 
 
 def sequence_from_dict(data: dict, source: str = "<dict>", base_dir=".") -> Sequence:
