@@ -20,6 +20,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .reduction import ordered_sum
+
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def g_face(Dp, Dq, h):
@@ -85,24 +87,25 @@ def diagonal(D, sah3, mask, h, out, bw):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def dot(a, b):
-    total = 0.0
+    part = np.empty(a.shape[0])
     for kk in nb.prange(a.shape[0]):
         k = np.int64(kk)
         s = 0.0
         for i in range(a.shape[1]):
             for j in range(a.shape[2]):
                 s += a[k, i, j] * b[k, i, j]
-        total += s
-    return total
+        part[k] = s
+    return ordered_sum(part)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def cg_update(x, r, p, Ap, M, alpha, z):
     """x += alpha p; r -= alpha Ap; z = r / M. Returns (r . z, r . r)."""
-    rz = 0.0
-    rr = 0.0
+    part = np.empty((2, x.shape[0]))
     for kk in nb.prange(x.shape[0]):
         k = np.int64(kk)
+        rz = 0.0
+        rr = 0.0
         for i in range(x.shape[1]):
             for j in range(x.shape[2]):
                 x[k, i, j] += alpha * p[k, i, j]
@@ -112,7 +115,9 @@ def cg_update(x, r, p, Ap, M, alpha, z):
                 z[k, i, j] = zv
                 rz += rv * zv
                 rr += rv * rv
-    return rz, rr
+        part[0, k] = rz
+        part[1, k] = rr
+    return ordered_sum(part[0]), ordered_sum(part[1])
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -130,12 +135,13 @@ def leaks(phi, D, mask, h, bw):
     """Power [W] leaving the region: (through face k = 0, through k = n_d - 1, through the 4
     lateral faces of the domain, into cells outside the region)."""
     n0, n1, n2 = phi.shape
-    r = 0.0
-    t = 0.0
-    s = 0.0
-    o = 0.0
+    part = np.zeros((4, n0))
     for kk in nb.prange(n0):
         k = np.int64(kk)
+        r = 0.0
+        t = 0.0
+        s = 0.0
+        o = 0.0
         for i in range(n1):
             for j in range(n2):
                 if not mask[k, i, j]:
@@ -151,7 +157,11 @@ def leaks(phi, D, mask, h, bw):
                         s += g
                     elif not mask[kq, iq, jq]:
                         o += g
-    return r, t, s, o
+        part[0, k] = r
+        part[1, k] = t
+        part[2, k] = s
+        part[3, k] = o
+    return ordered_sum(part[0]), ordered_sum(part[1]), ordered_sum(part[2]), ordered_sum(part[3])
 
 
 BINOMIAL = (0.0625, 0.25, 0.375, 0.25, 0.0625)

@@ -27,6 +27,8 @@ NumPy twins (exact HG splits, no table): tests/twins.py (jacobi_step, sweep, han
 import numba as nb
 import numpy as np
 
+from .reduction import ordered_sum
+
 REFLECTED, TRANSMITTED, SIDE_ESCAPED, ABSORBED = 0, 1, 2, 3
 
 
@@ -96,12 +98,13 @@ def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out
     into Q (see :func:`_hands_over`).
     """
     n0, n1, n2 = W.shape
-    refl = 0.0
-    trans = 0.0
-    side_out = 0.0
-    absorbed = 0.0
+    part = np.zeros((4, n0))            # the tallies per slice (kernels/reduction.py)
     for kk in nb.prange(n0):
         k = np.int64(kk)   # prange indices are unsigned; keep k - 1 an integer
+        refl = 0.0
+        trans = 0.0
+        side_out = 0.0
+        absorbed = 0.0
         for i in range(n1):
             for j in range(n2):
                 w = W[k, i, j]
@@ -133,10 +136,12 @@ def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out
                 if not periodic:
                     missing = (i == 0) + (i == n1 - 1) + (j == 0) + (j == n2 - 1)
                     side_out += missing * es * th
-    tally[REFLECTED] += refl
-    tally[TRANSMITTED] += trans
-    tally[SIDE_ESCAPED] += side_out
-    tally[ABSORBED] += absorbed
+        part[REFLECTED, k] = refl
+        part[TRANSMITTED, k] = trans
+        part[SIDE_ESCAPED, k] = side_out
+        part[ABSORBED, k] = absorbed
+    for c in range(4):
+        tally[c] += ordered_sum(part[c])
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -145,10 +150,11 @@ def jacobi_gather(parts, Th, Dh, periodic, W_out, Wa_out, tally):
     applies its own half step. Race-free (each cell writes only itself). Returns the energy
     now in flight."""
     _, n0, n1, n2 = parts.shape
-    in_flight = 0.0
-    absorbed = 0.0
+    part = np.zeros((2, n0))            # in flight, absorbed per slice (kernels/reduction.py)
     for kk in nb.prange(n0):
         k = np.int64(kk)
+        in_flight = 0.0
+        absorbed = 0.0
         for i in range(n1):
             for j in range(n2):
                 e = 0.0
@@ -174,8 +180,10 @@ def jacobi_gather(parts, Th, Dh, periodic, W_out, Wa_out, tally):
                 Wa_out[k, i, j] = ea * th * Dh[k, i, j]
                 absorbed += e * (1.0 - th)
                 in_flight += e * th
-    tally[ABSORBED] += absorbed
-    return in_flight
+        part[0, k] = in_flight
+        part[1, k] = absorbed
+    tally[ABSORBED] += ordered_sum(part[1])
+    return ordered_sum(part[0])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -342,12 +350,14 @@ def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def total_energy(x):
-    """Sum of a 3-D float32 array in float64 (parallel over the first axis)."""
-    total = 0.0
-    for k in nb.prange(x.shape[0]):
+    """Sum of a 3-D float32 array in float64 (parallel over the first axis; the same bits with
+    any number of threads, kernels/reduction.py)."""
+    part = np.empty(x.shape[0])
+    for kk in nb.prange(x.shape[0]):
+        k = np.int64(kk)
         s = 0.0
         for i in range(x.shape[1]):
             for j in range(x.shape[2]):
                 s += x[k, i, j]
-        total += s
-    return total
+        part[k] = s
+    return ordered_sum(part)

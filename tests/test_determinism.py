@@ -1,0 +1,55 @@
+"""Results do not depend on the number of threads: the parallel sums (kernels/reduction.py)
+and a whole solve give the same bits with one thread as with two. Dask workers run one
+Numba thread each (popvol.distributed), and frames must be bitwise those of a serial run."""
+import numba
+import numpy as np
+import pytest
+
+import popvol
+from popvol.kernels import diffusion as KD
+from popvol.kernels import propagation as KP
+
+pytestmark = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 Numba threads")
+
+
+def with_threads(n, f):
+    old = numba.get_num_threads()
+    numba.set_num_threads(n)
+    try:
+        return f()
+    finally:
+        numba.set_num_threads(old)
+
+
+def random_grids(n=3, shape=(37, 23, 19)):
+    rng = np.random.default_rng(5)
+    return [(rng.random(shape, dtype=np.float32) * 10.0 ** rng.uniform(-3, 3, shape)).astype(np.float32)
+            for _ in range(n)]
+
+
+def test_parallel_sums_are_the_same_with_one_or_two_threads():
+    a, b, m = random_grids()
+    for f in (lambda: KD.dot(a, b), lambda: KP.total_energy(a)):
+        assert with_threads(1, f) == with_threads(2, f)
+
+    def update():
+        x, r, p = (g.copy() for g in random_grids())
+        return KD.cg_update(x, r, p, a, m + 1.0, 0.3, np.empty_like(a)), x, r
+    (s1, x1, r1), (s2, x2, r2) = with_threads(1, update), with_threads(2, update)
+    assert s1 == s2 and np.array_equal(x1, x2) and np.array_equal(r1, r2)
+    # and the sums are right: against NumPy's float64 sum (the kernel multiplies in float32)
+    assert KD.dot(a, b) == pytest.approx(float(np.sum(a.astype(np.float64) * b)), rel=1e-6)
+    assert KP.total_energy(a) == pytest.approx(float(np.sum(a, dtype=np.float64)), rel=1e-12)
+
+
+def test_a_solve_is_the_same_with_one_or_two_threads():
+    scene = popvol.scene_from_dict({
+        "medium": {"type": "procedural", "resolution": 10, "scale": 30.0, "time": 1.0},
+        "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": 5.0},
+                   {"type": "sky", "lights": 2}],
+        "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "width": 32, "height": 18},
+        "method": {"resolution": 16}})
+    one, two = with_threads(1, lambda: popvol.solve(scene)), with_threads(2, lambda: popvol.solve(scene))
+    for name in ("phi", "phia", "direct", "phid", "flux"):
+        assert np.array_equal(getattr(one, name), getattr(two, name)), name
+    assert [d.result.iterations for d in one.domains] == [d.result.iterations for d in two.domains]
