@@ -303,3 +303,34 @@ def test_an_opaque_absorber_gives_a_finite_budget(solver):
     assert np.isfinite(b.balance_error) and abs(b.balance_error) < 1e-6
     assert b.absorbed == pytest.approx(b.injected, rel=1e-6)
     assert np.all(np.isfinite(r.phi))
+
+
+def test_a_sun_domain_is_cropped_to_the_voxels_the_renderer_reads(rng):
+    """The domain is the medium box's lattice cut down to the cells that hold the non-empty
+    voxels and their neighbours (the voxels the renderer reads fields at): the same cells
+    (frame, cell size, centres on the lattice), starting at a multiple of the diffusion block,
+    and every cell of every such voxel inside it."""
+    from popvol.domains import directional_domain
+    from popvol.pipeline import voxels_seen
+    density = np.zeros((40, 36, 44), np.float32)
+    density[5:14, 20:31, 8:12] = rng.random((9, 11, 4)).astype(np.float32) + 0.1
+    med = Medium(density, [0.1, 0.08, 0.12], [0.3, -0.2, 0.1])
+    d = np.array([0.3, -0.8, 0.52])
+    full = directional_domain(med, d, 24, block=2, crop=False)
+    dom = directional_domain(med, d, 24, block=2)
+    assert np.array_equal(dom.frame, full.frame) and dom.h == full.h and dom.block == 2
+    offset = (dom.origin - full.origin) @ dom.frame.T / dom.h
+    np.testing.assert_allclose(offset, np.round(offset), atol=1e-9)
+    offset = np.round(offset).astype(int)
+    assert np.all(offset >= 0) and np.all(offset % 2 == 0)
+    assert np.all(offset + dom.shape <= full.shape)
+    assert dom.n_cells < 0.2 * full.n_cells
+    # every corner of every voxel the renderer reads lies in the domain's cells
+    seen = np.argwhere(voxels_seen(density))
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    world = med.origin + (seen[:, None, :] + corners[None]) * med.voxel_size
+    q = dom.world_to_index(world)
+    assert np.all(q >= -0.5 - 1e-9) and np.all(q <= np.array(dom.shape) - 0.5 + 1e-9)
+    # an empty medium keeps the whole lattice
+    empty = Medium(np.zeros_like(density), med.voxel_size, med.origin)
+    assert directional_domain(empty, d, 24, block=2).shape == full.shape

@@ -109,11 +109,21 @@ def test_a_turned_sun_is_resampled_and_a_moved_point_light_reuses_its_grid():
     assert_same_frame(s, warm, cold)
 
 
-@pytest.mark.parametrize("case", ["lights", "shape", "kind", "walk"])
+def test_a_previous_solution_on_another_grid_is_resampled():
+    """Another resolution (or a medium whose crop changed) gives the sun's domain another
+    shape: the guess is resampled onto it, and the frame is still the cold one."""
+    s = scene()
+    prev = popvol.solve(scene(resolution=N - 4))
+    cold, warm = popvol.solve(s), popvol.solve(s, warm=prev)
+    sun = domains(warm)[0]
+    assert sun["warm"] and "resampled" in sun["warm_note"]
+    assert_same_frame(s, warm, cold)
+
+
+@pytest.mark.parametrize("case", ["lights", "kind", "walk"])
 def test_a_mismatched_previous_solution_falls_back_to_cold(case):
     s = scene()
     prev_scene, note = {"lights": (scene(lights=(SUN,)), "light(s)"),
-                        "shape": (scene(resolution=N - 4), "diffusion grid"),
                         "kind": (scene(lights=(POINT, SUN)), "light"),
                         "walk": (scene(isotropic="walk"), "no diffusion solve")}[case]
     prev = popvol.solve(prev_scene)

@@ -272,7 +272,7 @@ def bench_propagation(resolution: int, repeat: int, width=640, height=360) -> di
             "camera": {**DEMO_SCENE["camera"], "width": width, "height": height}}
     scene = scene_from_dict(data, source=f"<demo cloud at {resolution}^3>")
     light = scene.lights[0]
-    dom = directional_domain(scene.medium, light.direction, resolution)
+    dom = directional_domain(scene.medium, light.direction, resolution, crop=False)   # the whole n^3 box
     sigma_t, sigma_s, g = resample_medium(scene.medium, dom)
     Th, Dh = medium_factors(sigma_t, sigma_s, g, dom.h, scene.method.decay)
     inj = np.full(dom.shape[1:], dom.h ** 2, np.float32)

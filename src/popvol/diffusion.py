@@ -220,18 +220,17 @@ def warm_guess(prev, prev_grid, grid, factor: int) -> tuple[np.ndarray | None, s
     """An initial guess for the diffusion solve on ``grid`` (coarsened by ``factor``) from an
     earlier solve ``prev`` (a DiffusionResult) on ``prev_grid``: (phi or None, why).
 
-    The same geometry (frame, origin, cell size, shape): prev.phi itself. The same shape but a
-    moved grid (the light turned or the medium moved): prev.phi resampled trilinearly at the new
-    cell centres (clamped to its edge value within its outer half cell, 0 outside), O(cells) in
-    NumPy. Another shape: None (cold). Any guess gives the same answer within the tolerance
-    (:func:`pcg`); a poor one only costs iterations."""
+    The same geometry (frame, origin, cell size, shape): prev.phi itself. A moved or resized
+    grid (the light turned, the medium moved or grew, so its domain's crop changed): prev.phi
+    resampled trilinearly at the new cell centres (clamped to its edge value within its outer
+    half cell, 0 outside), O(cells) in NumPy. Any guess gives the same answer within the
+    tolerance (:func:`pcg`); a poor one only costs iterations."""
     if prev is None or prev_grid is None:
         return None, "cold: no previous diffusion solve for this light"
     frame, origin, H, shape = grid_geometry(grid, factor)
-    if tuple(prev.phi.shape) != shape:
-        return None, f"cold: diffusion grid {list(shape)} != previous {list(prev.phi.shape)}"
     pframe, porigin, pH, _ = grid_geometry(prev_grid, prev.factor)
-    if np.array_equal(frame, pframe) and np.array_equal(origin, porigin) and H == pH:
+    if (tuple(prev.phi.shape) == shape and np.array_equal(frame, pframe) and np.array_equal(origin, porigin)
+            and H == pH):
         return prev.phi, "warm"
     return resample_grid(prev.phi, pframe, porigin, pH, frame, origin, H, shape), "warm: resampled (grid moved)"
 

@@ -3,8 +3,10 @@
 
 A directional light gets a rectilinear grid of cubic cells whose first axis is the light's
 direction of travel d (its principal ordinate); the other two axes u, v complete a right-handed
-frame. The grid covers the medium's world AABB (the AABB, in the (d, u, v) frame, of its 8
-corners). Slice 0 (index k = 0) faces the light.
+frame. The grid's lattice covers the medium's world AABB (the AABB, in the (d, u, v) frame, of
+its 8 corners), and the grid is that lattice cropped to the cells the medium's non-empty voxels
+reach (:func:`crop_to_medium`): light walks only where it can meet the medium. Slice 0 (index
+k = 0) faces the light.
 
 Index convention: cell (k, i, j) has its centre at
 ``origin + ((k + 1/2) d + (i + 1/2) u + (j + 1/2) v) * h`` where ``origin`` is the world
@@ -56,12 +58,16 @@ class DirectionalDomain:
         origin: float64 (3,), world position of the corner of cell (0, 0, 0).
         h: cell size in world units (cells are cubes).
         shape: (n_d, n_u, n_v) cells.
+        block: the crop starts at a multiple of ``block`` cells of the medium box's lattice
+            along each axis, so blocks of block^3 cells (a coarser diffusion grid) are the same
+            cells whatever the crop.
     """
 
     frame: np.ndarray
     origin: np.ndarray
     h: float
     shape: tuple[int, int, int]
+    block: int = 1
 
     @property
     def n_cells(self) -> int:
@@ -80,9 +86,12 @@ class DirectionalDomain:
         return self.origin + (np.asarray(q) + 0.5) * self.h @ self.frame
 
 
-def directional_domain(medium: Medium, direction: np.ndarray, resolution: int) -> DirectionalDomain:
-    """The domain for light travelling along ``direction`` with ``resolution`` cells along its
-    longest side; the other sides get the same cell size (rounded up to whole cells)."""
+def directional_domain(medium: Medium, direction: np.ndarray, resolution: int, block: int = 1,
+                       crop: bool = True) -> DirectionalDomain:
+    """The domain for light travelling along ``direction``: a lattice of cubic cells with
+    ``resolution`` cells along the longest side of the medium's box in the light's frame (the
+    other sides rounded up to whole cells), cropped to the medium (:func:`crop_to_medium`, the
+    crop aligned to ``block`` cells) unless ``crop`` is False."""
     frame = light_frame(direction)
     lo, hi = medium.bounds
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -94,10 +103,65 @@ def directional_domain(medium: Medium, direction: np.ndarray, resolution: int) -
     # centre the (slightly larger) grid on the medium's box
     pad = (np.asarray(shape) * h - extent) / 2
     origin = (lmin - pad) @ frame
-    dom = DirectionalDomain(frame, origin, h, shape)
+    dom = DirectionalDomain(frame, origin, h, shape, block)
+    if crop:
+        dom = crop_to_medium(dom, medium)
     check_memory(dom.n_cells * BYTES_PER_DOMAIN_CELL, f"{medium.source}: method.resolution = {resolution}",
-                 f"a light domain of {shape[0]}x{shape[1]}x{shape[2]} cells")
+                 f"a light domain of {dom.shape[0]}x{dom.shape[1]}x{dom.shape[2]} cells")
     return dom
+
+
+_OCCUPIED: list = []      # one entry: (density array, its column ends), see occupied_ends
+
+
+def occupied_ends(density: np.ndarray) -> np.ndarray:
+    """float64 (M, 3): voxel indices of the first and the last non-empty voxel of every column
+    along the first axis that has one. Every non-empty voxel lies between two of them, so a
+    linear function's extremes over the non-empty voxels are its extremes over these points.
+    The last density's answer is kept (one light after another asks for it)."""
+    if _OCCUPIED and _OCCUPIED[0][0] is density:
+        return _OCCUPIED[0][1]
+    m = density > 0
+    any_ = m.any(axis=0)
+    j, k = np.nonzero(any_)
+    first = np.argmax(m, axis=0)[j, k]
+    last = m.shape[0] - 1 - np.argmax(m[::-1], axis=0)[j, k]
+    ends = np.concatenate([np.stack([first, j, k], 1), np.stack([last, j, k], 1)]).astype(np.float64)
+    _OCCUPIED[:] = [(density, ends)]
+    return ends
+
+
+def medium_extent(medium: Medium, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lo, hi) float64 (3,): the extent along the rows of ``frame`` of the voxel cells that
+    the renderer reads fields at (the non-empty voxels and their neighbours, see
+    pipeline.voxels_seen); None if the medium is empty."""
+    ends = occupied_ends(medium.density)
+    if len(ends) == 0:
+        return None
+    axes = np.asarray(frame, np.float64) * medium.voxel_size[None, :]    # a voxel step, per row
+    p = ends @ axes.T
+    # a voxel centre to its cell's far corner, plus one voxel for the neighbours
+    margin = 1.5 * np.abs(axes).sum(axis=1)
+    base = np.asarray(medium.origin, np.float64) @ np.asarray(frame, np.float64).T
+    return base + p.min(axis=0) - margin, base + p.max(axis=0) + margin
+
+
+def crop_to_medium(dom: DirectionalDomain, medium: Medium) -> DirectionalDomain:
+    """The cells of ``dom``'s lattice that overlap :func:`medium_extent`, the first one at a
+    multiple of ``dom.block`` along each axis. Light outside them never meets the medium again
+    along a straight line (the extent is a convex box), so walking it would only let the walk's
+    six-direction steps carry it back by a random walk through vacuum; on the demo at dusk
+    (sun and an 8-direction sky) the domains shrink 6x and the image moves by relMSE 5e-4."""
+    ext = medium_extent(medium, dom.frame)
+    if ext is None:
+        return dom
+    corner = np.asarray(dom.origin) @ dom.frame.T          # lattice corner along d, u, v
+    n = np.asarray(dom.shape)
+    a = np.clip(np.floor((ext[0] - corner) / dom.h).astype(np.int64), 0, n - 1)
+    a = a // dom.block * dom.block
+    b = np.clip(np.ceil((ext[1] - corner) / dom.h).astype(np.int64), a + 1, n)
+    origin = (corner + a * dom.h) @ dom.frame
+    return DirectionalDomain(dom.frame, origin, dom.h, tuple(int(x) for x in b - a), dom.block)
 
 
 def optics(medium: Medium, grid, shape, channel: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -37,7 +37,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
 
     ``warm``: the same light's domain solution from an earlier frame (see :func:`solve`): its
     diffusion fluence is the conjugate-gradient solve's initial guess, resampled if the grid
-    moved, when its diffusion grid has the same shape (else cold; ``warm_note`` says why).
+    moved or changed shape (``warm_note`` says which, or why cold).
     The walk always starts cold (see :func:`solve`)."""
     check_decay(medium, method)
     t0 = time.perf_counter()
@@ -133,9 +133,9 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
 
     ``warm``: the previous frame's solution of an animation (None: cold, the solve as without
     it, bit for bit). A domain warm-starts when ``warm`` has as many lights and a domain of the
-    same light index, channel and kind whose diffusion grid has the same shape: its diffusion
-    fluence is the initial guess of the conjugate-gradient solve (resampled if the grid moved;
-    the method may differ). The CG stops on the true residual relative to ||b||, so the frame
+    same light index, channel and kind with a diffusion solve: its diffusion fluence is the
+    initial guess of the conjugate-gradient solve (resampled if the grid moved or changed
+    shape; the method may differ). The CG stops on the true residual relative to ||b||, so the frame
     is the cold frame within the solver tolerance however different the previous one was (a
     cut costs iterations, not accuracy). The walk always starts cold: it is not a linear fixed
     point (the energy-weighted merge of lobes and the per-packet hand-over make it

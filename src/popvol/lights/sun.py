@@ -71,8 +71,8 @@ class DirectionalLight(Light):
         resolution = method.resolution
         if self.from_environment and method.environment_resolution:
             resolution = method.environment_resolution
-        grid = directional_domain(medium, self.direction, resolution)
-        return SunDomain(grid.frame, grid.origin, grid.h, grid.shape, self.a0)
+        grid = directional_domain(medium, self.direction, resolution, diffusion_factor(resolution, method))
+        return SunDomain(grid.frame, grid.origin, grid.h, grid.shape, grid.block, self.a0)
 
     def table(self) -> dict:
         return {"type": self.type, "direction": [float(x) for x in self.direction],
@@ -86,12 +86,13 @@ class DirectionalLight(Light):
         return np.concatenate([self.direction, self.irradiance]).astype(np.float64).tobytes()
 
 
-def diffusion_factor(shape, method) -> int:
-    """Domain cells per diffusion cell along each axis: the diffusion grid has about
-    method.diffusion_resolution cells along the domain's longest side (0: the domain's own)."""
+def diffusion_factor(resolution: int, method) -> int:
+    """Domain cells per diffusion cell along each axis for a domain of ``resolution`` cells
+    along its lattice's longest side: the diffusion grid has about method.diffusion_resolution
+    cells there (0: the domain's own)."""
     if not method.diffusion_resolution:
         return 1
-    return max(1, round(max(shape) / method.diffusion_resolution))
+    return max(1, round(resolution / method.diffusion_resolution))
 
 
 @dataclass
@@ -120,8 +121,7 @@ class SunDomain(DirectionalDomain):
 
     def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
         """The diffusion grid is the domain itself, in blocks of diffusion_factor^3 cells."""
-        return HandOver(self, walk.handed[0], walk.handed[1], optics,
-                        diffusion_factor(self.shape, method))
+        return HandOver(self, walk.handed[0], walk.handed[1], optics, self.block)
 
     def world_fields(self, walk, medium, needed, outs) -> None:
         fields = (walk.phi, walk.phia) + (() if walk.direct is None else (walk.direct,))
