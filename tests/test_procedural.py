@@ -174,3 +174,15 @@ def test_the_demo_shows_the_cumulus_under_sun_and_sky():
     kinds = [l.get("type", "directional") for l in DEMO_SCENE["lights"]]
     assert kinds == ["directional", "sky"]
     assert DEMO_SCENE["lights"][0]["direction"][2] < 0      # the sun shines away from the camera
+
+
+def test_cached_noise_tiles_give_the_same_cloud():
+    """The tiles are made once per seed (procedural._tiles): a frame made with them cached is
+    bitwise the frame made from scratch, and the cache cannot be written through."""
+    from popvol import procedural
+    procedural._tiles.cache_clear()
+    fresh = procedural.cloud_density(32, 11, "cumulus", 0.4)
+    again = procedural.cloud_density(32, 11, "cumulus", 0.4)
+    assert np.array_equal(fresh, again)
+    perlin, worley, _ = procedural._tiles(11)
+    assert not perlin.flags.writeable and not worley.flags.writeable
