@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from popvol.errors import PopvolError
+from popvol.method import Method
 from popvol.scene import load_scene, scene_from_dict, DEMO_SCENE
 
 REPO = Path(__file__).resolve().parents[1]
@@ -160,7 +161,7 @@ def test_bench_quick_writes_well_formed_figures(tmp_path):
                 "render_camera_samples_per_s"):
         assert prop[key]["min"] > 0, key
     demo = res["scenes"]["demo"]
-    assert demo["seconds"]["total"]["min"] > 0 and demo["residual"] <= 1e-3 and demo["method"].startswith("moment")
+    assert demo["seconds"]["total"]["min"] > 0 and demo["residual"] <= Method().tolerance and demo["method"].startswith("moment")
     assert set(demo["seconds"]) >= {"load", "resample", "propagate", "diffusion", "fields", "render", "total"}
     assert "not found" in res["scenes"]["wdas_sun"]["skipped"] and "wdas_sun: skipped" in r.stdout
 

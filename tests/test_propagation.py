@@ -334,3 +334,41 @@ def test_a_sun_domain_is_cropped_to_the_voxels_the_renderer_reads(rng):
     # an empty medium keeps the whole lattice
     empty = Medium(np.zeros_like(density), med.voxel_size, med.origin)
     assert directional_domain(empty, d, 24, block=2).shape == full.shape
+
+
+def test_what_is_pending_when_the_walk_stops_goes_to_diffusion(rng):
+    """hand_over_pending moves the packets pending in the diffusion region into Q after their
+    cells' half steps (power W Th, moment Wa Th Dh; W (1 - Th) absorbed) and leaves the rest.
+    A walk stopped early (tolerance 0.05) does so: its budget closes with the hand-over
+    counted, and it hands over nearly what the walk run to 1e-6 does (what the early walk
+    still held would mostly have been handed over)."""
+    from popvol.walk import hand_over_pending, handover_factor
+    shape, h = (12, 10, 10), 0.05
+    density = rng.random(shape).astype(np.float32) * 30
+    density[:, :2] = 0.0                                   # empty rows: light pends there too
+    sigma_s, g = 0.95 * density, np.full(shape, 0.8, np.float32)
+    Th, Dh = medium_factors(density, sigma_s, g, h, "poisson")
+    diffusive = handover_factor(density, sigma_s, g, h)
+    W = rng.random(shape).astype(np.float32)
+    Wa = (W * rng.uniform(-1, 1, shape)).astype(np.float32)
+    Q = np.zeros((2,) + shape, np.float32)
+    W0, Wa0 = W.copy(), Wa.copy()
+    absorbed = hand_over_pending(W, Wa, Th, Dh, diffusive, Q)
+    region = diffusive > 0
+    assert region.any() and (~region).any()
+    np.testing.assert_array_equal(W[region], 0.0)
+    np.testing.assert_array_equal(W[~region], W0[~region])
+    np.testing.assert_allclose(Q[0], np.where(region, W0 * Th, 0.0), rtol=1e-6)
+    np.testing.assert_allclose(Q[1], np.where(region, Wa0 * Th * Dh, 0.0), rtol=1e-5, atol=1e-7)
+    assert absorbed == pytest.approx(float(np.sum(np.where(region, W0 * (1.0 - Th), 0.0))), rel=1e-5)
+
+    ho = (2.0, diffusive)
+    inj = np.full(shape[1:], h * h, np.float32)
+    early = walk_box(Th, Dh, inj, 1.0, h, tolerance=0.05, handover=ho)
+    full = walk_box(Th, Dh, inj, 1.0, h, tolerance=1e-6, handover=ho)
+    for r in (early, full):
+        b = r.budget
+        parts = b.escaped + b.absorbed + b.in_flight + float(r.handed[0].sum(dtype=np.float64))
+        assert parts == pytest.approx(b.injected, rel=1e-5)
+    assert early.iterations < full.iterations
+    assert early.handed[0].sum() == pytest.approx(full.handed[0].sum(), abs=0.02 * early.budget.injected)

@@ -136,7 +136,9 @@ KNOBS: tuple[Knob, ...] = (
          "Its cells are blocks of the light's domain; 0 = the domain's own cells."),
     Knob("environment_resolution", 64, (2, 4096), "`resolution` of the domains of an environment's lights.",
          "Soft light needs fewer cells; 0 = `resolution`.", zero=True),
-    Knob("tolerance", 1e-3, (1e-12, 1.0), "Stop when the energy in flight is below tolerance * injected."),
+    Knob("tolerance", 3e-3, (1e-12, 1.0), "Stop when the energy in flight is below tolerance * injected.",
+         "What is then pending in the diffusion region is handed over; the diffusion solve stops at a "
+         "residual of 0.1 tolerance."),
     Knob("max_iterations", 0, (0, 10_000_000), "Cap on iterations; 0 = automatic.",
          "A capped run is reported as not converged in `--stats`.",
          default_text="0 (automatic: 400 sweeps, or 40 x the domain's perimeter for Jacobi)"),
