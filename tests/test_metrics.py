@@ -190,3 +190,27 @@ def test_compare_command_prints_and_writes_the_new_metric(tmp_path, capsys):
     assert res["reference_noise_relmse"] is None and "optical depth" in res["mask"]
     assert "relMSE" in printed and "x2.000" in printed and "bright 10 % x2.000" in printed
     assert "reference noise n/a" in printed and fig.stat().st_size > 2000
+
+
+def test_equal_error_spp_follows_the_reference_noise_falling_as_one_over_spp():
+    """A reference of N spp with noise relMSE n reaches popvol's error e (its relMSE less the
+    noise) at N n / e spp. Checked against noise made by averaging k independent samples: the
+    relMSE of that mean against the truth is the per-sample noise / k."""
+    rng = np.random.default_rng(2)
+    truth = rng.uniform(0.2, 1.0, (40, 60, 3))
+    mask = np.ones(truth.shape[:2], bool)
+    sigma = 0.3 * truth                                      # one sample's noise
+    def mean_of(k):
+        return truth + rng.standard_normal((k,) + truth.shape).mean(axis=0) * sigma
+    per_sample = metrics.noise_relmse(sigma ** 2, truth, mask)
+    error = 0.01                                             # popvol's error against the truth
+    eq = metrics.equal_error(error + per_sample / 64, per_sample / 64, 64, 64 * 0.5, 2.0)
+    k = eq["spp"]
+    assert k == pytest.approx(per_sample / error, rel=1e-9)
+    measured = np.mean([metrics.relmse(mean_of(int(round(k))), truth, mask) for _ in range(20)])
+    assert measured == pytest.approx(error, rel=0.1)
+    assert eq["seconds"] == pytest.approx(0.5 * k) and eq["speedup"] == pytest.approx(0.25 * k)
+    # unknown: no noise estimate, no timing, or a relMSE the reference's noise could explain
+    assert metrics.equal_error(0.1, None, 64, 10.0, 1.0) == {"spp": None, "seconds": None, "speedup": None}
+    assert metrics.equal_error(0.1, 0.01, 64, None, 1.0)["seconds"] is None
+    assert metrics.equal_error(0.015, 0.01, 64, 10.0, 1.0)["spp"] is None

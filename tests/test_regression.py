@@ -92,3 +92,23 @@ def test_fixture_reference_loads_and_names_its_scene_portably(reference, mask):
     assert (lum & ~mask).sum() == 0 and lum.sum() <= mask.sum() <= 1.1 * lum.sum()
     scene = Path(reference.meta["scene"])
     assert not scene.is_absolute() and (FIXTURES / scene).is_file()
+
+
+def test_compare_prints_the_equal_error_speed_up(tmp_path):
+    """popvol compare on the fixture: the Mitsuba reference's noise (16 passes) and recorded
+    time give the samples per pixel it would need to be as close as popvol is, and the time."""
+    import json
+    import subprocess
+    import sys
+    out = tmp_path / "c.json"
+    r = subprocess.run([sys.executable, "-m", "popvol.cli", "compare", str(FIXTURES / "regression_cloud.toml"),
+                        "--reference", str(FIXTURES / "regression_cloud.exr"), "--json", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(out.read_text())
+    eq, spp = res["equal_error"], res["reference_spp"]
+    error = res["relmse"] - res["reference_noise_relmse"]
+    assert eq["spp"] == pytest.approx(spp * res["reference_noise_relmse"] / error, rel=1e-9)
+    assert eq["seconds"] == pytest.approx(res["reference_seconds"] / spp * eq["spp"], rel=1e-9)
+    assert eq["speedup"] == pytest.approx(eq["seconds"] / res["popvol_seconds"], rel=1e-9)
+    assert "equal error: the reference would need" in r.stdout

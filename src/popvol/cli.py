@@ -321,7 +321,9 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     On the pixels whose camera ray crosses the medium (optical depth > 0.01): relMSE with
     eps = 0.01 (mean reference luminance there)^2, unchanged when both images are scaled; the
     brightness ratio popvol / reference there and in the reference's dimmest 50 %, middle 40 %
-    and brightest 10 % of them; the reference's own noise in the same relMSE."""
+    and brightest 10 % of them; the reference's own noise in the same relMSE; and the equal-error
+    speed-up: the samples per pixel, and seconds at the reference's recorded rate, that the
+    reference would need for its noise to equal popvol's error, over popvol's time."""
     from . import metrics
     from .io.images import write_image
     from . import solve
@@ -343,8 +345,11 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     mask = metrics.medium_mask(ref.image, sc)
     res = {"scene": sc.source, "reference": str(ref_path), "reference_spp": ref.spp, "method": vars(sc.method),
            "popvol_seconds": seconds, "solve_seconds": solution.seconds,
+           "reference_seconds": float(ref.meta.get("seconds", 0.0)) or None,
            "mask": f"camera ray optical depth > {metrics.MASK_OPTICAL_DEPTH:g}",
            **metrics.compare(img, ref.image, mask, ref.variance)}
+    res["equal_error"] = metrics.equal_error(res["relmse"], res["reference_noise_relmse"], ref.spp,
+                                             res["reference_seconds"], seconds)
     if json_out:
         write_text_atomically(json_out, json.dumps(_json_safe(res), indent=2, allow_nan=False))
     if figure:
@@ -363,6 +368,14 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
                f"mid 40 % x{_fmt(b['mid'], '.3f')}, bright 10 % x{_fmt(b['bright'], '.3f')})  "
                f"reference noise {_fmt(res['reference_noise_relmse'], '.2g')}  "
                f"SSIM {_fmt(res['ssim'], '.3f')}  FLIP {_fmt(flip, '.3f')}  popvol {seconds:.2f} s")
+    eq = res["equal_error"]
+    if eq["seconds"] is not None:
+        click.echo(f"equal error: the reference would need {eq['spp']:.3g} spp, {eq['seconds']:.3g} s at its "
+                   f"measured {res['reference_seconds'] / ref.spp:.3g} s per spp: x{eq['speedup']:.3g} popvol's time")
+    elif eq["spp"] is not None:
+        click.echo(f"equal error: the reference would need {eq['spp']:.3g} spp (its render time is not recorded)")
+    else:
+        click.echo("equal error: n/a (the reference has no noise estimate, or is too noisy to show popvol's error)")
 
 
 def _fmt(value, spec: str) -> str:

@@ -35,6 +35,8 @@ is NaN.
 """
 from __future__ import annotations
 
+import math
+
 import numba as nb
 import numpy as np
 
@@ -205,6 +207,32 @@ def noise_relmse(variance, ref, mask=None) -> float:
     var, ref = _pair(variance, ref)
     mask = _mask(mask, ref)
     return _relative(var, ref, mask)
+
+
+def equal_error(relmse_value, noise, ref_spp, ref_seconds, popvol_seconds) -> dict:
+    """How long the reference renderer would need to be as close to the truth as popvol is.
+
+    The reference's relMSE against the truth is its noise, variance / (ref^2 + eps) averaged
+    (:func:`noise_relmse`), and the variance of a mean of independent samples falls as
+    1 / spp, so it equals popvol's error e at ``spp = ref_spp * noise / e`` samples per pixel,
+    which cost ``ref_seconds / ref_spp`` each. popvol's error is its measured relMSE less the
+    reference's noise (the expected relMSE against a noisy reference is error + noise).
+
+    Returns {"spp", "seconds", "speedup"} (speedup = those seconds / ``popvol_seconds``), each
+    None when it cannot be told: no noise estimate (fewer than 2 passes), no timing, or a
+    relMSE within twice the noise (the reference is too noisy to show popvol's error)."""
+    out = {"spp": None, "seconds": None, "speedup": None}
+    if noise is None or not (noise > 0) or relmse_value is None or not math.isfinite(relmse_value):
+        return out
+    error = relmse_value - noise
+    if not error > noise:
+        return out
+    out["spp"] = ref_spp * noise / error
+    if ref_seconds and ref_seconds > 0 and ref_spp > 0:
+        out["seconds"] = ref_seconds / ref_spp * out["spp"]
+        if popvol_seconds and popvol_seconds > 0:
+            out["speedup"] = out["seconds"] / popvol_seconds
+    return out
 
 
 def _ratio(y_img, y_ref) -> float:
