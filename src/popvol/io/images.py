@@ -108,6 +108,19 @@ ACES_LUT_LOG2 = (-14.0, 9.0)
 
 
 @functools.cache
+def _exact_processor():
+    """OpenColorIO's exact CPU processor of the ACES 2.0 SDR sRGB view (built once)."""
+    try:
+        import PyOpenColorIO as ocio
+        config = ocio.Config.CreateFromBuiltinConfig(OCIO_CONFIG)
+        exact = config.getProcessor(OCIO_SOURCE, OCIO_DISPLAY, OCIO_VIEW, ocio.TRANSFORM_DIR_FORWARD)
+    except Exception as e:          # not installed, or too old to ship OCIO_CONFIG
+        raise PopvolError(f"tone 'aces' needs OpenColorIO >= 2.6 with its built-in config {OCIO_CONFIG} "
+                          f"(pip install 'opencolorio>=2.6'), or use tone 'clip' ({' '.join(str(e).split())})") from None
+    return exact.getDefaultCPUProcessor()
+
+
+@functools.cache
 def _aces_processor():
     """OpenColorIO CPU processor of the ACES 2.0 SDR sRGB view, baked into a 3-D table.
 
@@ -116,18 +129,12 @@ def _aces_processor():
     per pixel. On the gallery's Mitsuba references at their auto exposure and 3 stops either
     side, no pixel differs from the exact transform by more than one code (8 % of them by one);
     tests/test_tone.py checks this against the exact transform."""
-    try:
-        import PyOpenColorIO as ocio
-        config = ocio.Config.CreateFromBuiltinConfig(OCIO_CONFIG)
-        exact = config.getProcessor(OCIO_SOURCE, OCIO_DISPLAY, OCIO_VIEW, ocio.TRANSFORM_DIR_FORWARD)
-    except Exception as e:          # not installed, or too old to ship OCIO_CONFIG
-        raise PopvolError(f"tone 'aces' needs OpenColorIO >= 2.6 with its built-in config {OCIO_CONFIG} "
-                          f"(pip install 'opencolorio>=2.6'), or use tone 'clip' ({' '.join(str(e).split())})") from None
+    cpu = _exact_processor()                             # a one-line error if OCIO is missing
+    import PyOpenColorIO as ocio
     n, (lo, hi) = ACES_LUT_SIZE, ACES_LUT_LOG2
     x = 2.0 ** np.linspace(lo, hi, n)
     grid = np.stack(np.meshgrid(x, x, x, indexing="ij"), -1).astype(np.float32).reshape(1, -1, 3)
     table = grid.copy()
-    cpu = exact.getDefaultCPUProcessor()
     cpu.applyRGB(table)                                  # red slowest, blue fastest: OCIO's order
     # the exact transform maps one point of this grid, (189.0, 114.9, 89.5), to black (a
     # singularity of OpenColorIO 2.6's ACES 2.0 code); such points are taken 1e-4 brighter
@@ -149,11 +156,8 @@ def _aces_processor():
 def aces_exact(rgb) -> np.ndarray:
     """float32 (..., 3): OpenColorIO's exact ACES 2.0 SDR sRGB view of linear ``rgb`` (display
     values in [0, 1], not rounded). Slow; what :func:`tonemap` approximates with a table."""
-    import PyOpenColorIO as ocio
-    config = ocio.Config.CreateFromBuiltinConfig(OCIO_CONFIG)
-    proc = config.getProcessor(OCIO_SOURCE, OCIO_DISPLAY, OCIO_VIEW, ocio.TRANSFORM_DIR_FORWARD)
     x = np.array(rgb, np.float32).reshape(1, -1, 3)          # a copy: applyRGB works in place
-    proc.getDefaultCPUProcessor().applyRGB(x)
+    _exact_processor().applyRGB(x)
     return x.reshape(np.shape(rgb))
 
 
