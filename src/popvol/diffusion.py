@@ -232,7 +232,7 @@ def warm_guess(prev, prev_grid, grid, factor: int) -> tuple[np.ndarray | None, s
     if (tuple(prev.phi.shape) == shape and np.array_equal(frame, pframe) and np.array_equal(origin, porigin)
             and H == pH):
         return prev.phi, "warm"
-    return resample_grid(prev.phi, pframe, porigin, pH, frame, origin, H, shape), "warm: resampled (grid moved)"
+    return resample_grid(prev.phi, pframe, porigin, pH, frame, origin, H, shape), "warm: resampled (grid moved or resized)"
 
 
 def fill_gaps(x, mask, rounds: int = 8) -> np.ndarray:
