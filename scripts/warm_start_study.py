@@ -17,6 +17,11 @@ are bitwise the same: the walk always starts cold); "motion" is the relMSE of th
 against the previous frame's, how much the sequence moves. Seconds are wall clock on a shared
 machine: the iteration counts are the measure.
 
+Why a warm start saves no more: for each warm-started domain, the initial residual
+||b - A x0|| / ||b|| of the warm start (x0 the previous frame's phi, scaled as pcg does), split
+into the cells next to a change of the diffusion region (cells that joined or left it, and
+their neighbours) and the rest, beside the change of the source ||b - b_prev|| / ||b||.
+
 Then the check behind that choice (see pipeline.solve): the walk is not additive. For the first
 frame's sun, it walks the light of a checkerboard half of the face and of the other half
 separately and compares their sum with the whole light walked at once, next to the change that
@@ -32,6 +37,8 @@ import time
 import numpy as np
 
 import popvol
+from popvol import diffusion
+from popvol.kernels import diffusion as KD
 from popvol.metrics import relmse
 from popvol.walk import handover_factor, medium_factors, walk_box
 
@@ -63,6 +70,49 @@ def totals(sol) -> tuple[int, int, int]:
     d = sol.stats()["domains"]
     return (sum(x["iterations"] for x in d), sum(x["diffusion_iterations"] for x in d),
             sum(bool(x["warm"]) for x in d))
+
+
+class ResidualParts:
+    """Wraps diffusion.pcg while installed: for each warm start, the parts of its initial residual
+    (module docstring), by the domain's call order within a solve."""
+
+    def __init__(self):
+        self.pcg, self.rows, self.prev_b, self.index = diffusion.pcg, [], {}, 0
+
+    def __enter__(self):
+        diffusion.pcg = self.record
+        return self
+
+    def __exit__(self, *exc):
+        diffusion.pcg = self.pcg
+
+    def record(self, D, sah3, mask, h, b, rtol, max_iterations, bw=None, x0=None):
+        """Keeps the arguments (the parts are worked out after the timed solve: :meth:`parts`)."""
+        i, self.index = self.index, self.index + 1
+        if x0 is not None:
+            self.rows.append((D, sah3, mask, h, b, bw, x0, self.prev_b.get(i)))
+        self.prev_b[i] = b
+        return self.pcg(D, sah3, mask, h, b, rtol, max_iterations, bw, x0)
+
+    def parts(self):
+        """Per warm start: (whole, near a region change, elsewhere, cells near, region cells,
+        source change), relative to ||b|| (the source change NaN where the grid changed)."""
+        for D, sah3, mask, h, b, bw, x0, pb in self.rows:
+            x = diffusion.fill_gaps(x0, mask)
+            Ax = np.empty(x.shape, np.float32)
+            KD.apply(x, D, sah3, mask, h, Ax, bw)
+            xAx = float(np.dot(x.ravel().astype(np.float64), Ax.ravel()))
+            scale = float(np.dot(x.ravel().astype(np.float64), b.ravel())) / xAx if xAx > 0 else 0.0
+            r = b - scale * Ax.astype(np.float64)
+            changed = mask != (x0 != 0)
+            near = changed.copy()
+            for axis in range(3):
+                near |= np.roll(changed, 1, axis) | np.roll(changed, -1, axis)
+            near &= mask
+            bn = float(np.linalg.norm(b))
+            db = float(np.linalg.norm(b - pb)) / bn if pb is not None and pb.shape == b.shape else float("nan")
+            yield (np.linalg.norm(r) / bn, np.linalg.norm(r[near]) / bn, np.linalg.norm(r[~near]) / bn,
+                   int(near.sum()), int(mask.sum()), db)
 
 
 def walk_additivity(s) -> None:
@@ -110,11 +160,14 @@ def main() -> None:
           f" {'relMSE':>8} {'dphi_d':>8} {'dJ':>8} {'motion':>8}")
     prev = prev_cold_img = None
     sums = np.zeros(4)
+    parts = ResidualParts()
     for f in range(args.frames):
         seed = 3 if 0 <= args.cut <= f else 7
         s = scene(args.t0 + f * args.dt, seed, args.resolution, args.width, args.height)
         cold, tc = timed_solve(s)
-        warm, tw = timed_solve(s, prev)
+        parts.index = 0
+        with parts:
+            warm, tw = timed_solve(s, prev)
         ic, iw = popvol.render(s, cold), popvol.render(s, warm)
         assert all(np.array_equal(getattr(cold, n), getattr(warm, n)) for n in ("phi", "phia", "direct"))
         (sc, cc, _), (sw, cw, nw) = totals(cold), totals(warm)
@@ -130,6 +183,11 @@ def main() -> None:
     if sums[1] > 0:
         print(f"frames 1..{args.frames - 1} but the cut: CG iterations {sums[0]:.0f} cold, {sums[1]:.0f} warm "
               f"({sums[0] / sums[1]:.2f}x fewer); solve seconds {sums[2]:.2f} cold, {sums[3]:.2f} warm")
+    print("\nthe warm starts' initial residual ||b - A x0|| / ||b|| (frames but the first, by domain: whole, on the "
+          "cells next to a region change, elsewhere; those cells, region cells; the source's change ||b - b_prev|| / ||b||)")
+    for r, near, rest, n_near, n, db in parts.parts():
+        print(f"  {r:5.2f} = {near:5.2f} near ({n_near} of {n} cells) + {rest:5.2f} elsewhere;   "
+              f"source change {db:5.2f}")
     walk_additivity(scene(args.t0, 7, args.resolution, args.width, args.height))
 
 
