@@ -142,7 +142,7 @@ KNOBS: tuple[Knob, ...] = (
     Knob("max_iterations", 0, (0, 10_000_000), "Cap on iterations; 0 = automatic.",
          "A capped run is reported as not converged in `--stats`.",
          default_text="0 (automatic: 400 sweeps, or 40 x the domain's perimeter for Jacobi)"),
-    Knob("step", 0.5, (1e-3, 16.0), "Ray-marching step, in voxels of the medium."),
+    Knob("step", 1.0, (1e-3, 16.0), "Ray-marching step, in voxels of the medium."),
     Knob("spp", 1, (1, 4096), "Jittered camera rays per pixel.", cli=("render", "compare")),
     Knob("exposure", "auto", (-64.0, 64.0), "PNG exposure in stops, or \"auto\".",
          "\"auto\" places the 99th percentile of the lit pixels' luminance at 1.44 (Zone VIII: "
