@@ -34,19 +34,22 @@ def blob_file(tmp_path_factory):
     return p
 
 
-def blob_scene(path, albedo, scale, background, width=32, height=24, density_file=None):
+SUN = {"type": "directional", "direction": [0.3, -1.0, -0.4], "irradiance": [1.0, 0.8, 0.6]}
+
+
+def blob_scene(path, albedo, scale, background, width=32, height=24, density_file=None, light=SUN):
     """albedo and scale: a number or RGB."""
     return scene_from_dict({
         "medium": {"type": "file", "file": str(density_file or path), "scale": scale, "albedo": albedo, "g": 0.5},
-        "lights": [{"type": "directional", "direction": [0.3, -1.0, -0.4], "irradiance": [1.0, 0.8, 0.6]}],
+        "lights": [light],
         "background": {"radiance": background},
         "camera": {"origin": [0.3, 0.4, 2.5], "target": [0, 0, 0], "fov": 35, "width": width, "height": height},
         "method": {"spp": 64}})
 
 
-def mitsuba_passes(mi, scene, spp, passes=4):
+def mitsuba_passes(mi, scene, spp, passes=4, max_depth=1024):
     """Mean image and the variance of that mean, from independent passes."""
-    ms = mi.load_dict(mitsuba_dict(scene, mi, spp=spp))
+    ms = mi.load_dict(mitsuba_dict(scene, mi, max_depth=max_depth, spp=spp))
     imgs = np.stack([np.asarray(mi.render(ms, spp=spp, seed=s), np.float64)[..., :3] for s in range(passes)])
     return imgs.mean(0), imgs.var(0, ddof=1) / passes
 
@@ -119,6 +122,28 @@ def test_optically_thin_medium_matches_single_scattering(mi, blob_file):
     np.testing.assert_allclose(img.sum((0, 1)) / img.sum((0, 1))[0], [1, 0.8, 0.6], rtol=1e-4)
 
 
+def test_single_scattering_matches_paths_of_one_bounce(mi, blob_file):
+    """Solution.single_scattering() lights the medium with the unscattered light alone; rendered,
+    it is the light that scattered exactly once, which Mitsuba's volpath gives with max_depth = 2.
+    On a blob of optical depth ~5 (multiple scattering ~40 % of the image in popvol) the two
+    agree to 1 % in total (measured: x1.009, the direct fluence resampled onto 16^3 voxels) and
+    block by block within the noise plus 2 % of the brightest block (measured: within the noise)."""
+    sc = blob_scene(blob_file, 0.9, 8.0, 0.0)
+    ref, var = mitsuba_passes(mi, sc, 1024, max_depth=2)
+    solution = popvol.solve(sc)
+    single = popvol.render(sc, solution.single_scattering())
+    full = popvol.render(sc, solution)
+    assert full.sum() > 1.4 * single.sum()          # the rest of the image is multiple scattering
+    assert single.sum() == pytest.approx(ref.sum(), rel=0.02, abs=4 * np.sqrt(var.sum()))
+    b_ref, b_img = blocks(ref), blocks(single)
+    assert np.all(np.abs(b_img - b_ref) <= 5 * np.sqrt(blocks(var) / 16) + 0.02 * b_ref.max())
+    # a point light's spherical fields likewise: its direct part alone
+    sp = blob_scene(blob_file, 0.9, 8.0, 0.0, light={"type": "point", "position": [0.2, 0.9, 0.3], "intensity": 1.0})
+    ref_p, var_p = mitsuba_passes(mi, sp, 1024, max_depth=2)
+    single_p = popvol.render(sp, popvol.solve(sp).single_scattering())
+    assert single_p.sum() == pytest.approx(ref_p.sum(), rel=0.03, abs=4 * np.sqrt(var_p.sum()))
+
+
 def test_reference_passes_accumulate_and_resume(blob_file, tmp_path):
     sc = blob_scene(blob_file, 1.0, 2.0, 0.0, width=16, height=12)
     out = tmp_path / "ref.exr"
@@ -135,6 +160,8 @@ def test_reference_passes_accumulate_and_resume(blob_file, tmp_path):
         render_reference(other, out, spp=64, passes=4)
     with pytest.raises(PopvolError, match="samples per pass"):
         render_reference(sc, out, spp=32, passes=4)
+    with pytest.raises(PopvolError, match="max-depth 1024"):        # other path lengths, other image
+        render_reference(sc, out, spp=64, passes=4, max_depth=2)
     assert load_reference(out).spp == 128
 
 

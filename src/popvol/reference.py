@@ -238,6 +238,9 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
             s, s2 = z["sum"].copy(), z["sumsq"].copy()
         done_passes, done_spp = int(meta["passes"]), int(meta["spp"])
         seconds = float(meta.get("seconds", 0.0))
+        if int(meta.get("max_depth", 1024)) != max_depth:
+            raise PopvolError(f"{output}: was rendered with --max-depth {meta.get('max_depth', 1024)}; resume "
+                              f"with the same (now {max_depth}) or choose another output")
         if int(meta.get("spp_per_pass", 0)) != spp // passes:
             raise PopvolError(f"{output}: has {meta.get('spp_per_pass')} samples per pass; resume "
                               f"with --spp / --passes giving the same (now {spp // passes})")

@@ -173,6 +173,19 @@ class Solution:
         power = np.array([l.power for l in lights], np.float64).reshape(-1, 3)
         return dataclasses.replace(self, irradiance=power)
 
+    def single_scattering(self) -> "Solution":
+        """The same scene lit by its unscattered light alone: each light's fluence is its
+        direct part (phi = phia = phi_dir, a lobe of anisotropy 1 along the light's direction,
+        which the renderer lights with f_hg(mu; g): docs/METHOD.md Eq. 23), with no diffuse
+        light. Rendered, it is the light that reaches the camera after exactly one scattering
+        event, what a path tracer's paths of that length give (Mitsuba volpath ``max_depth =
+        2``). Environment lights (a0 < 1) have no direct part, so they give nothing here."""
+        fields = self.points.fields.copy()
+        fields[0] = fields[1] = fields[2]
+        return dataclasses.replace(self, phi=self.direct, phia=self.direct,
+                                   phid=_empty(0, *self.phid.shape[1:]), flux=_empty(0, *self.flux.shape[1:]),
+                                   points=dataclasses.replace(self.points, fields=fields))
+
     @property
     def nbytes(self) -> int:
         """Bytes of every array the solution holds for rendering."""
