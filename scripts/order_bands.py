@@ -15,7 +15,8 @@ Printed on the pixels that see the medium (popvol compare's mask), in all of the
 reference's dimmest 50 %, middle 40 % and brightest 10 %: each order band's share of the full
 reference's luminance, then popvol's single scattering over Mitsuba's order 1 and popvol's rest
 over Mitsuba's orders >= 2 (brightness ratios), with the noise (one standard deviation) of each
-ratio from the references' passes.
+ratio from the references' passes, and the same for the walk alone (``isotropic = "walk"``; its
+single scattering is the default's).
 """
 from __future__ import annotations
 
@@ -41,7 +42,7 @@ def luminance_sums(img, masks) -> dict:
 def variance_sums(ref, masks) -> dict:
     if ref.variance is None:
         return {name: float("nan") for name in masks}
-    v = metrics.luminance(ref.variance)       # approximately: luminance weights squared are < weights
+    v = np.asarray(ref.variance, np.float64) @ (metrics.LUMINANCE ** 2)     # the variance of the luminance
     return {name: float(v[m].sum()) for name, m in masks.items()}
 
 
@@ -72,14 +73,17 @@ def main() -> None:
     solution = popvol.solve(scene)
     single = popvol.render(scene, solution.single_scattering())
     whole = popvol.render(scene, solution)
+    walk_scene = popvol.load_scene(scene_path, width=w, height=h, isotropic="walk")
+    walk_whole = popvol.render(walk_scene, popvol.solve(walk_scene))
 
     levels = [luminance_sums(cuts[d].image, masks) for d in DEPTHS] + [luminance_sums(full.image, masks)]
     var = [variance_sums(cuts[d], masks) for d in DEPTHS] + [variance_sums(full, masks)]
     print(f"{scene_path.name}: {w}x{h}, {int(mask.sum())} pixels see the medium; references "
           + ", ".join(f"max_depth {d} {cuts[d].spp} spp" for d in DEPTHS) + f", full {full.spp} spp")
     print(f"{'band':8s} " + " ".join(f"{'order ' + o:>10s}" for o in ORDER_BANDS)
-          + f" {'popvol single / order 1':>26s} {'popvol rest / orders >= 2':>27s}")
+          + f" {'popvol single / order 1':>26s} {'popvol rest / orders >= 2':>27s} {'walk alone':>10s}")
     p_single, p_whole = luminance_sums(single, masks), luminance_sums(whole, masks)
+    p_walk = luminance_sums(walk_whole, masks)
     for name in masks:
         total = levels[-1][name]
         shares = [levels[0][name]] + [levels[i][name] - levels[i - 1][name] for i in range(1, len(levels))]
@@ -88,8 +92,9 @@ def main() -> None:
         rm = (p_whole[name] - p_single[name]) / multi
         s1 = r1 * np.sqrt(var[0][name]) / o1
         sm = rm * np.sqrt(var[0][name] + var[-1][name]) / multi
+        rw = (p_walk[name] - p_single[name]) / multi
         print(f"{name:8s} " + " ".join(f"{s / total:10.3f}" for s in shares)
-              + f" {r1:17.3f} +- {s1:.3f} {rm:18.3f} +- {sm:.3f}")
+              + f" {r1:17.3f} +- {s1:.3f} {rm:18.3f} +- {sm:.3f} {rw:10.3f}")
 
 
 if __name__ == "__main__":
