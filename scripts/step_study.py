@@ -2,12 +2,15 @@
 what each step changes in the image, in the metric of ``popvol compare``, and what it costs
 (run from the repository root, with ../shared beside the checkout):
 
-    python scripts/step_study.py [--steps 0.5 1 2] [--width 320] [--height 180]
+    python scripts/step_study.py [--steps 0.5 1 2] [--width 320] [--height 180] [--scenes NAME ...]
+                                 [--seeds N]
 
 Every scene of examples/ that loads here, and the regression fixture, is solved once at its own
 method resolution and rendered at each step and at the finest step / 4 (the reference, also
 jittered). Columns: relMSE on the pixels that see the medium, brightness ratio overall and in
-the brightest 10 %, and the render's seconds (best of 3, 2 cores).
+the brightest 10 %, and the render's seconds (best of 3, 2 cores). With ``--seeds N`` each
+step is rendered with method.seed 0 .. N-1 (other sub-pixel and along-ray offsets) and the
+columns are the mean and standard deviation over the seeds: popvol's own 1-spp sampling noise.
 """
 from __future__ import annotations
 
@@ -16,6 +19,8 @@ import dataclasses
 import time
 from pathlib import Path
 
+import numpy as np
+
 import popvol
 from popvol import metrics
 from popvol.errors import PopvolError
@@ -23,15 +28,15 @@ from popvol.errors import PopvolError
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def scenes():
-    yield from sorted((ROOT / "examples").glob("*.toml"))
-    yield ROOT / "tests" / "fixtures" / "regression_cloud.toml"
+def scenes(names):
+    paths = sorted((ROOT / "examples").glob("*.toml")) + [ROOT / "tests" / "fixtures" / "regression_cloud.toml"]
+    return [p for p in paths if not names or p.stem in names]
 
 
-def render(scene, solution, step):
-    s = dataclasses.replace(scene, method=dataclasses.replace(scene.method, step=step))
+def render(scene, solution, step, seed=0, repeat=3):
+    s = dataclasses.replace(scene, method=dataclasses.replace(scene.method, step=step, seed=seed))
     best = float("inf")
-    for _ in range(3):
+    for _ in range(repeat):
         t0 = time.perf_counter()
         image = popvol.render(s, solution)
         best = min(best, time.perf_counter() - t0)
@@ -43,11 +48,13 @@ def main() -> None:
     ap.add_argument("--steps", type=float, nargs="+", default=[0.5, 1.0, 2.0])
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=180)
+    ap.add_argument("--scenes", nargs="+", default=None, help="example names (default: all, and the fixture)")
+    ap.add_argument("--seeds", type=int, default=1)
     args = ap.parse_args()
     fine = min(args.steps) / 4
     print(f"reference: step {fine:g} voxel; {args.width}x{args.height}")
     print(f"{'scene':22s} {'step':>5s} {'relMSE':>9s} {'bright':>8s} {'top10%':>8s} {'render s':>9s}")
-    for path in scenes():
+    for path in scenes(args.scenes):
         try:
             scene = popvol.load_scene(path, width=args.width, height=args.height)
         except PopvolError as e:
@@ -57,10 +64,17 @@ def main() -> None:
         ref, _ = render(scene, solution, fine)
         mask = metrics.medium_mask(ref, scene)
         for step in args.steps:
-            image, seconds = render(scene, solution, step)
-            print(f"{path.stem:22s} {step:5g} {metrics.relmse(image, ref, mask):9.2e} "
-                  f"{metrics.brightness_ratio(image, ref, mask):8.5f} "
-                  f"{metrics.band_ratios(image, ref, mask)['bright']:8.5f} {seconds:9.3f}")
+            rows = []
+            for seed in range(args.seeds):
+                image, seconds = render(scene, solution, step, seed, 3 if seed == 0 else 1)
+                rows.append((metrics.relmse(image, ref, mask), metrics.brightness_ratio(image, ref, mask),
+                             metrics.band_ratios(image, ref, mask)["bright"], seconds))
+            r = np.array(rows)
+            if args.seeds == 1:
+                print(f"{path.stem:22s} {step:5g} {r[0, 0]:9.2e} {r[0, 1]:8.5f} {r[0, 2]:8.5f} {r[0, 3]:9.3f}")
+            else:
+                print(f"{path.stem:22s} {step:5g} {r[:, 0].mean():9.2e} {r[:, 1].mean():.4f}+-{r[:, 1].std():.4f} "
+                      f"{r[:, 2].mean():.4f}+-{r[:, 2].std():.4f} {r[0, 3]:9.3f}")
 
 
 if __name__ == "__main__":
