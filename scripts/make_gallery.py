@@ -46,6 +46,7 @@ ENTRIES = [
     ("smoke1_point", "OpenVDB's smoke1 lit by a point light inside it", (180, 240)),
     ("dragon_sky", "The dragon fog under a sky alone", (320, 180)),
     ("demo_dusk", "The built-in cumulus at dusk: a low orange sun and a darkening sky", (320, 180)),
+    ("field_sun", "A field of small cumulus on tall voxels, the sun behind the camera", (320, 180)),
 ]
 
 

@@ -22,7 +22,7 @@ from popvol.reference import load_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 REFS = ROOT / "build" / "gallery"
-SCENES = ["wdas_side", "wdas_front", "wdas_silver", "smoke1_point", "dragon_sky", "demo_dusk"]
+SCENES = ["wdas_side", "wdas_front", "wdas_silver", "smoke1_point", "dragon_sky", "demo_dusk", "field_sun"]
 RESOLUTIONS = (64, 128, 256)
 VARIANTS = (("default", {}), ("walk alone", {"isotropic": "walk"}))
 

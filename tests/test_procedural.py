@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from popvol.errors import PopvolError
-from popvol.procedural import STYLES, cloud_density, cloud_shape
+from popvol.procedural import MOVING_STYLES, STYLES, VOXEL_ASPECT, cloud_density, cloud_shape, demo_medium
 from popvol.scene import DEMO_SCENE, scene_from_dict
 
 REPO = Path(__file__).resolve().parents[1]
@@ -45,7 +45,7 @@ def test_smooth_style_is_popvol_0_1s_cloud_bitwise(key):
 @pytest.mark.parametrize("resolution", [8, 13, 40])
 def test_grid_shape_type_and_range(style, resolution):
     d = cloud_density(resolution, 5, style)
-    assert d.shape == cloud_shape(resolution) and d.dtype == np.float32
+    assert d.shape == cloud_shape(resolution, style) and d.dtype == np.float32
     assert d.min() == 0.0 and 0.0 < d.max() <= 1.0
     assert np.all(d[:, 0, :] == 0)                     # below the flat base: empty
 
@@ -97,11 +97,53 @@ def test_density_is_continuous_in_time():
     assert np.abs(cloud_density(32, 7, time=5.0) - cloud_density(32, 7)).mean() > 1e-3
 
 
-def test_time_moves_the_detail_not_the_cloud():
+@pytest.mark.parametrize("style", MOVING_STYLES)
+def test_time_moves_the_detail_not_the_cloud(style):
     """The puffs stay: the occupied volume changes little while the detail moves."""
-    a, b = cloud_density(48, 7), cloud_density(48, 7, time=20.0)
+    a, b = cloud_density(48, 7, style), cloud_density(48, 7, style, time=20.0)
     assert np.abs(a - b).max() > 0.5
     assert abs((a > 0.05).sum() / (b > 0.05).sum() - 1) < 0.15
+
+
+def test_the_field_is_many_small_clouds_on_voxels_twice_as_tall():
+    """The "field" style: separate small cumulus over a square, a fifth or so of the ground
+    covered, each flat-based, on voxels twice as tall as wide (as in atmospheric models)."""
+    import scipy.ndimage as ndimage
+    d = cloud_density(96, 7, "field")
+    assert d.shape == (96, 12, 96)
+    labels, n = ndimage.label(d > 0.05)
+    sizes = np.bincount(labels.ravel())[1:]
+    assert (sizes >= 30).sum() >= 8                     # many clouds, not one
+    cover = (d.max(axis=1) > 0).mean()
+    assert 0.1 < cover < 0.5
+    m = demo_medium(96, 7, extent=2.0, style="field")
+    assert m.voxel_size[1] == VOXEL_ASPECT["field"] * m.voxel_size[0] == 2 * 2.0 / 96
+    lo, hi = m.bounds
+    np.testing.assert_allclose([lo[0], lo[1], hi[0], hi[1]], [-1.0, 0.0, 1.0, 0.5])
+
+
+def test_the_field_example_is_the_field_on_tall_voxels():
+    from popvol import load_scene
+    sc = load_scene(REPO / "examples" / "field_sun.toml")
+    assert sc.medium.voxel_size[1] == 2 * sc.medium.voxel_size[0]
+    assert np.array_equal(sc.medium.density, cloud_density(128, 7, "field"))
+    assert sc.lights[0].direction[2] < 0                  # the sun shines away from the camera
+
+
+def test_a_field_renders_with_a_closed_energy_budget():
+    """Tall voxels through the whole pipeline: every domain's budget closes and the image is
+    finite, not black, and brighter where the clouds are."""
+    import popvol
+    sc = scene_from_dict({"medium": {"type": "procedural", "style": "field", "resolution": 48, "scale": 40.0},
+                          "lights": [{"direction": [-0.45, -0.6, -0.66]}],
+                          "camera": {"origin": [0.0, 0.9, 2.4], "target": [0.0, 0.1, 0.0], "width": 48, "height": 27},
+                          "method": {"resolution": 48}})
+    sol = popvol.solve(sc)
+    for d in sol.stats()["domains"]:
+        b = d["budget_per_unit_irradiance"]
+        assert abs(b["balance_error"]) < 1e-4 * b["injected"]
+    img = popvol.render(sc, sol)
+    assert np.all(np.isfinite(img)) and img.max() > 0.05
 
 
 def test_function_refuses_unknown_style_and_bad_time():
@@ -127,6 +169,7 @@ def test_scene_style_and_time_reach_the_generator():
     assert np.array_equal(medium().density, cloud_density(16, 7, "cumulus"))
     assert np.array_equal(medium(style="smooth", seed=3).density, cloud_density(16, 3, "smooth"))
     assert np.array_equal(medium(time=1.5).density, cloud_density(16, 7, time=1.5))
+    assert np.array_equal(medium(style="field", time=1.5).density, cloud_density(16, 7, "field", 1.5))
 
 
 @pytest.mark.parametrize("keys, words", [

@@ -18,8 +18,12 @@ Two styles (``cloud_density(style=...)``, the scene key ``medium.style``):
   Peak memory ~40 bytes per voxel, as the smooth style's.
 - ``"smooth"``: popvol 0.1's generator, kept bitwise: the same puffs without the tower, eroded
   only at large scale by value-noise fbm. Scenes whose references were made with it say so.
+- ``"field"``: a field of small flat-based cumulus (a core and three turrets each, placed at
+  random but apart) over a square, eroded by the same noise scaled to the small clouds, on
+  voxels twice as tall as wide (:data:`VOXEL_ASPECT`), as the grids of atmospheric large-eddy
+  simulations are: a test of non-cubic voxels and of many clouds in one domain.
 
-``time`` (cumulus only) animates the detail: at time t (seconds) the erosion noise is sampled at
+``time`` (cumulus and field) animates the detail: at time t (seconds) the erosion noise is sampled at
 positions moved by a constant wind of :data:`WIND` cloud widths (``extent``) per second, each
 octave also drifting at its own small velocity, so the detail slides and evolves while the base
 shape stays put. Density is a continuous function of t, and t = 0 is bitwise the default.
@@ -40,8 +44,11 @@ from .medium import Medium
 BYTES_PER_VOXEL = 48
 
 
-def cloud_shape(resolution: int) -> tuple[int, int, int]:
-    """The grid shape of :func:`cloud_density` at ``resolution``."""
+def cloud_shape(resolution: int, style: str = "cumulus") -> tuple[int, int, int]:
+    """The grid shape of :func:`cloud_density` at ``resolution`` (the ``"field"`` style: an eighth
+    as many voxels in y, each twice as tall: a quarter of the width)."""
+    if style == "field":
+        return resolution, max(4, resolution // 8), resolution
     return resolution, resolution // 2 + resolution // 4, resolution
 
 
@@ -102,7 +109,9 @@ def _smooth_density(resolution: int = 96, seed: int = 7) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 
 #: The styles of :func:`cloud_density` (the first is the default).
-STYLES = ("cumulus", "smooth")
+STYLES = ("cumulus", "smooth", "field")
+#: The styles that ``time`` moves.
+MOVING_STYLES = ("cumulus", "field")
 #: The wind that carries the erosion noise as ``time`` goes on: cloud widths per second (x, y, z).
 WIND = (0.02, 0.0, 0.01)
 #: Each octave of the noise also drifts at up to this speed (cloud widths per second), so the
@@ -226,6 +235,31 @@ def _remap(x, lo, hi, new_lo, new_hi):
     return new_lo + (x - lo) / (hi - lo) * (new_hi - new_lo)
 
 
+def _erode(shape, height, axes, perlin, worley, rng: np.random.Generator, time: float) -> np.ndarray:
+    """Schneider's two erosions of a base ``shape`` (float32 grid, 1 at a puff's centre, 0 on its
+    surface) by Perlin-Worley and Worley noise (the tiles ``perlin``, ``worley``; see
+    :func:`_cumulus_density`); ``height`` (0 at the base, 1 at the top) makes the detail billowy
+    above and wispy below; ``axes``: the grid's coordinates in cloud widths (1-D each). Density
+    in [0, 1], float32."""
+    # Low frequencies: Perlin-Worley noise (Perlin fbm dilated by Worley fbm: Hillaire's
+    # remap(perlin, 0, 1, worley, 1)) carves the puffs into billows.
+    freq, octaves = _SHAPE_NOISE
+    w = _fbm(worley, axes, freq, octaves, rng, time)
+    pw = _remap(_fbm(perlin, axes, freq, octaves, rng, time), 0, 1, w, 1)
+    pw = np.clip(_remap(pw, *_PW_RANGE, 0, 1), 0, 1)
+    base = np.clip(_remap(shape, _SHAPE_EROSION * (1 - pw), 1, 0, 1), 0, 1)
+
+    # High frequencies: Worley fbm erodes the edges, billowy (inverted) above, wispy at the
+    # base (Schneider), more strongly towards the top.
+    freq, octaves = _DETAIL_NOISE
+    detail = np.clip(_remap(_fbm(worley, axes, freq, octaves, rng, time), *_DETAIL_RANGE, 0, 1), 0, 1)
+    billowy = np.clip(height * 4, 0, 1)
+    modifier = detail + (1 - 2 * detail) * billowy
+    k = _DETAIL_EROSION[0] + _DETAIL_EROSION[1] * height
+    density = _remap(base, modifier * k, 1, 0, 1) * np.float32(_GAIN)
+    return np.clip(density, 0, 1).astype(np.float32)
+
+
 def _cumulus_density(resolution: int, seed: int, time: float) -> np.ndarray:
     """The ``"cumulus"`` style. ``shape`` (1 - the squared distance over radius^2 of the nearest
     puff) is eroded twice by Schneider's remap(shape, lo, 1, 0, 1), which empties shape < lo:
@@ -252,31 +286,78 @@ def _cumulus_density(resolution: int, seed: int, time: float) -> np.ndarray:
     shape *= np.clip((Y + 0.12) / 0.12, 0, 1)
     height = np.clip((Y + 0.12) / (_TOP + 0.12), 0, 1)              # 0 at the base, 1 at the top
 
-    # Low frequencies: Perlin-Worley noise (Perlin fbm dilated by Worley fbm: Hillaire's
-    # remap(perlin, 0, 1, worley, 1)) carves the puffs into billows.
-    axes = (x / 2, y / 2, z / 2)                                     # in cloud widths
-    freq, octaves = _SHAPE_NOISE
-    w = _fbm(worley, axes, freq, octaves, rng, time)
-    pw = _remap(_fbm(perlin, axes, freq, octaves, rng, time), 0, 1, w, 1)
-    pw = np.clip(_remap(pw, *_PW_RANGE, 0, 1), 0, 1)
-    base = np.clip(_remap(shape, _SHAPE_EROSION * (1 - pw), 1, 0, 1), 0, 1)
+    return _erode(shape, height, (x / 2, y / 2, z / 2), perlin, worley, rng, time)
 
-    # High frequencies: Worley fbm erodes the edges, billowy (inverted) above, wispy at the
-    # base (Schneider), more strongly towards the top.
-    freq, octaves = _DETAIL_NOISE
-    detail = np.clip(_remap(_fbm(worley, axes, freq, octaves, rng, time), *_DETAIL_RANGE, 0, 1), 0, 1)
-    billowy = np.clip(height * 4, 0, 1)
-    modifier = detail + (1 - 2 * detail) * billowy
-    k = _DETAIL_EROSION[0] + _DETAIL_EROSION[1] * height
-    density = _remap(base, modifier * k, 1, 0, 1) * np.float32(_GAIN)
-    return np.clip(density, 0, 1).astype(np.float32)
+
+# ---------------------------------------------------------------------------------------------
+# The "field" style: many small cumulus on voxels twice as tall as wide
+# ---------------------------------------------------------------------------------------------
+
+#: Voxel height over width of each style's grid (the field's voxels are twice as tall, as in
+#: atmospheric models' grids).
+VOXEL_ASPECT = {"cumulus": 1, "smooth": 1, "field": 2}
+#: The field: how many clouds, their radius range (in units where the field spans x and z in
+#: [-1, 1]) and the height of their flat base (at least one voxel up).
+_FIELD_CLOUDS = 14
+_FIELD_RADIUS = (0.1, 0.22)
+_FIELD_BASE = 0.06
+
+
+def _field_clouds(seed: int, base: float) -> list[tuple[float, float, float, float]]:
+    """The field's puffs (cx, cy, cz, r): per cloud a core on the base and three turrets above
+    it, placed at least 1.6 radii apart (rejection sampling, a generator of its own so the noise
+    stays that of the tiles)."""
+    rng = np.random.default_rng([seed, 2])
+    puffs, centres = [], []
+    for _ in range(1000):
+        if len(centres) == _FIELD_CLOUDS:
+            break
+        r = rng.uniform(*_FIELD_RADIUS)
+        c = rng.uniform(-0.9 + r, 0.9 - r, 2)
+        if any(np.hypot(*(c - q)) < 1.6 * max(r, rq) for q, rq in centres):
+            continue
+        centres.append((c, r))
+        puffs.append((c[0], base + 0.55 * r, c[1], r))
+        for _ in range(3):
+            a = rng.uniform(0, 2 * np.pi)
+            d = rng.uniform(0.2, 0.5) * r
+            puffs.append((c[0] + d * np.cos(a), base + rng.uniform(0.8, 1.4) * r, c[1] + d * np.sin(a),
+                          rng.uniform(0.5, 0.7) * r))
+    return puffs
+
+
+def _field_density(resolution: int, seed: int, time: float) -> np.ndarray:
+    """The ``"field"`` style: :data:`_FIELD_CLOUDS` small cumulus (puffs cut flat at a common
+    base) over a square, each eroded as the ``"cumulus"`` style is, on voxels twice as tall as
+    wide; the noise is scaled to the small clouds (about 4 noise cloud widths per unit)."""
+    nx, ny, nz = cloud_shape(resolution, "field")
+    perlin, worley, state = _tiles(seed)
+    rng = np.random.default_rng(seed)
+    rng.bit_generator.state = state
+    x = (np.arange(nx, dtype=np.float64) + 0.5) / nx * 2 - 1
+    y = (np.arange(ny, dtype=np.float64) + 0.5) / nx * 2 * VOXEL_ASPECT["field"]
+    z = (np.arange(nz, dtype=np.float64) + 0.5) / nz * 2 - 1
+    X = x.astype(np.float32)[:, None, None]
+    Y = y.astype(np.float32)[None, :, None]
+    Z = z.astype(np.float32)[None, None, :]
+    shape = np.zeros((nx, ny, nz), np.float32)
+    base = max(_FIELD_BASE, 2.0 * VOXEL_ASPECT["field"] / nx)       # the lowest row stays empty
+    top = base
+    for cx, cy, cz, r in _field_clouds(seed, base):
+        d2 = ((X - cx) ** 2 + ((Y - cy) * 1.15) ** 2 + (Z - cz) ** 2) / np.float32(r * r)
+        np.maximum(shape, 1 - d2, out=shape)
+        top = max(top, cy + r / 1.15)
+    shape *= np.clip((Y - base) / 0.02, 0, 1)
+    height = np.clip((Y - base) / (top - base), 0, 1)
+    return _erode(shape, height, (x * 4, y * 4, z * 4), perlin, worley, rng, time)
 
 
 def cloud_density(resolution: int = 96, seed: int = 7, style: str = "cumulus", time: float = 0.0) -> np.ndarray:
-    """Density in [0, 1] of a cumulus cloud, float32 (n, n//2 + n//4, n) indexed x, y, z.
+    """Density in [0, 1] of a cumulus cloud, float32 :func:`cloud_shape` (n, n//2 + n//4, n;
+    the field: n, n//8, n) indexed x, y, z.
 
-    ``style``: one of :data:`STYLES` (module docstring). ``time`` (seconds, finite; cumulus only)
-    moves and evolves the erosion noise; 0 is bitwise the call without it.
+    ``style``: one of :data:`STYLES` (module docstring). ``time`` (seconds, finite; cumulus and
+    field) moves and evolves the erosion noise; 0 is bitwise the call without it.
     """
     if style not in STYLES:
         raise ValueError(f"style must be one of {STYLES}, got {style!r}")
@@ -284,8 +365,10 @@ def cloud_density(resolution: int = 96, seed: int = 7, style: str = "cumulus", t
         raise ValueError(f"time must be finite, got {time!r}")
     if style == "smooth":
         if time != 0:
-            raise ValueError("time applies to style 'cumulus' only")
+            raise ValueError("time applies to styles 'cumulus' and 'field' only")
         return _smooth_density(resolution, seed)
+    if style == "field":
+        return _field_density(resolution, seed, float(time))
     return _cumulus_density(resolution, seed, float(time))
 
 #: The demo cloud's optics (docs/SCENE.md: the procedural medium's defaults).
@@ -303,16 +386,15 @@ def demo_medium(resolution: int = 96, seed: int = 7, extent: float = 2.0,
     would not fit in the memory available.
     """
     from .domains import check_memory
-    shape = cloud_shape(resolution)
+    shape = cloud_shape(resolution, style)
     check_memory(int(np.prod(shape, dtype=np.int64)) * BYTES_PER_VOXEL, field or f"resolution = {resolution}",
                  f"a procedural cloud of {shape[0]}x{shape[1]}x{shape[2]} voxels")
     density = cloud_density(resolution, seed, style, time)
     voxel = extent / resolution
-    n = np.asarray(density.shape)
-    origin = np.array([-extent / 2, 0.0, -extent / 2]) + 0.5 * voxel
-    origin[1] = 0.5 * voxel
-    assert n[0] == resolution
-    return Medium(density, np.full(3, voxel), origin, scale=scale, albedo=albedo, g=g,
+    voxel_size = np.array([voxel, voxel * VOXEL_ASPECT[style], voxel])
+    origin = np.array([-extent / 2, 0.0, -extent / 2]) + 0.5 * voxel_size
+    assert density.shape[0] == resolution
+    return Medium(density, voxel_size, origin, scale=scale, albedo=albedo, g=g,
                   source=f"procedural {style} cloud (resolution {resolution}, seed {seed}"
                          + (f", time {time:g})" if time else ")"))
 

@@ -186,7 +186,7 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
         if isinstance(optics.get(key), dict):
             optics[key] = _optics_grid(optics[key], key, m, src, base)
     if kind == "procedural":
-        from .procedural import DEMO_OPTICS, STYLES, TIME_LIMIT, demo_medium
+        from .procedural import DEMO_OPTICS, MOVING_STYLES, STYLES, TIME_LIMIT, demo_medium
         unused = sorted({"file", "grid", "voxel_size", "origin"} & set(m))
         if unused:
             raise PopvolError(f"{src}: medium.{unused[0]} applies to a medium read from a file, not to "
@@ -201,9 +201,9 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
                               "voxels are lost in the rounding of world positions)")
         style = check.choice(m.get("style", STYLES[0]), "medium.style", src, STYLES)
         time = check.number(m.get("time", 0.0), "medium.time", src, -TIME_LIMIT, TIME_LIMIT)
-        if time != 0 and style != "cumulus":
-            raise PopvolError(f"{src}: medium.time = {time:g} applies to medium.style = 'cumulus' only "
-                              f"(the '{style}' cloud does not move)")
+        if time != 0 and style not in MOVING_STYLES:
+            raise PopvolError(f"{src}: medium.time = {time:g} applies to medium.style = 'cumulus' or 'field' "
+                              f"only (the '{style}' cloud does not move)")
         # scale 0 here: the optics, defaults included, are checked below against the scene's name
         med = demo_medium(res, seed, extent, scale=0.0, field=f"{src}: medium.resolution = {res}",
                           style=style, time=time)

@@ -8,7 +8,7 @@ A scene becomes a sequence through any of:
   ``mode`` says which file a frame outside ``frames`` reads (Blender's ``clip``, ``extend``,
   ``repeat``, ``pingpong``) and ``offset`` shifts file numbers against frame numbers;
 - ``[sequence] frames = "1-48"``, ``fps = 24``: the frames rendered by default and the frame
-  rate (a procedural cumulus gets ``time = medium.time + frame / fps``);
+  rate (a procedural cumulus or field gets ``time = medium.time + frame / fps``);
 - ``[[keyframes]]``: ``frame = N`` with values of ``camera.origin``, ``camera.target``,
   ``camera.up``, ``camera.fov`` and each light's ``direction``, ``irradiance``, ``a0``
   (directional) or ``position``, ``intensity`` (point), interpolated linearly per field between
@@ -38,6 +38,7 @@ import numpy as np
 
 from . import check
 from .errors import PopvolError
+from .procedural import MOVING_STYLES
 
 __all__ = ["MODES", "MAX_FRAME", "parse_frames", "frames_text", "frame_path", "file_number", "Sequence",
            "load_sequence", "sequence_from_dict", "is_sequence", "frame_data", "frame_digest",
@@ -458,7 +459,7 @@ def _frame_data(seq: Sequence, frame: int) -> tuple[dict, bool]:
                 if isinstance(t, dict) and isinstance(t.get("file"), str) and has_pattern(t["file"]):
                     m[key] = {**t, "file": frame_path(t["file"], n, f"medium.{key}.file", seq.source)}
         elif m.get("type", "file" if "file" in m else "procedural") == "procedural" \
-                and m.get("style", "cumulus") == "cumulus":
+                and m.get("style", "cumulus") in MOVING_STYLES:
             base = m.get("time", 0.0)
             if check._is_real(base) and math.isfinite(float(base)):     # else the loader names it
                 from .procedural import TIME_LIMIT
