@@ -235,12 +235,26 @@ def _remap(x, lo, hi, new_lo, new_hi):
     return new_lo + (x - lo) / (hi - lo) * (new_hi - new_lo)
 
 
-def _erode(shape, height, axes, perlin, worley, rng: np.random.Generator, time: float) -> np.ndarray:
+def _puff_union(puffs, X, Y, Z) -> np.ndarray:
+    """float32 grid: the union of the ellipsoidal puffs (cx, cy, cz, r), 1 - the squared distance
+    over r^2 of the nearest (1 at a centre, 0 on its surface, negative outside; squashed 1.15 in
+    y), at the coordinates X, Y, Z (float32, broadcasting to the grid)."""
+    shape = np.zeros(np.broadcast_shapes(X.shape, Y.shape, Z.shape), np.float32)
+    for cx, cy, cz, r in puffs:
+        d2 = ((X - cx) ** 2 + ((Y - cy) * 1.15) ** 2 + (Z - cz) ** 2) / np.float32(r * r)
+        np.maximum(shape, 1 - d2, out=shape)
+    return shape
+
+
+def _erode(shape, height, axes, seed: int, time: float) -> np.ndarray:
     """Schneider's two erosions of a base ``shape`` (float32 grid, 1 at a puff's centre, 0 on its
-    surface) by Perlin-Worley and Worley noise (the tiles ``perlin``, ``worley``; see
+    surface) by Perlin-Worley and Worley noise (the tiles of ``seed``; see
     :func:`_cumulus_density`); ``height`` (0 at the base, 1 at the top) makes the detail billowy
     above and wispy below; ``axes``: the grid's coordinates in cloud widths (1-D each). Density
     in [0, 1], float32."""
+    perlin, worley, state = _tiles(seed)
+    rng = np.random.default_rng(seed)
+    rng.bit_generator.state = state                  # as if the tiles had just been drawn
     # Low frequencies: Perlin-Worley noise (Perlin fbm dilated by Worley fbm: Hillaire's
     # remap(perlin, 0, 1, worley, 1)) carves the puffs into billows.
     freq, octaves = _SHAPE_NOISE
@@ -268,9 +282,6 @@ def _cumulus_density(resolution: int, seed: int, time: float) -> np.ndarray:
     lowest quarter (billowy) and not below it (wispy), at 1/20 and 1/40 cloud width. _GAIN
     steepens the edges; the result is clipped to [0, 1]."""
     nx, ny, nz = cloud_shape(resolution)
-    perlin, worley, state = _tiles(seed)
-    rng = np.random.default_rng(seed)
-    rng.bit_generator.state = state                  # as if the tiles had just been drawn
     x = (np.arange(nx, dtype=np.float64) + 0.5) / nx * 2 - 1      # [-1, 1]
     y = (np.arange(ny, dtype=np.float64) + 0.5) / nx * 2 - 0.25   # same units as x
     z = (np.arange(nz, dtype=np.float64) + 0.5) / nz * 2 - 1
@@ -278,15 +289,12 @@ def _cumulus_density(resolution: int, seed: int, time: float) -> np.ndarray:
     Y = y.astype(np.float32)[None, :, None]
     Z = z.astype(np.float32)[None, None, :]
 
-    # Base shape: the union of the puffs (1 at a centre, 0 on its surface), cut flat at the base.
-    shape = np.zeros((nx, ny, nz), np.float32)
-    for cx, cy, cz, r in _PUFFS:
-        d2 = ((X - cx) ** 2 + ((Y - cy) * 1.15) ** 2 + (Z - cz) ** 2) / np.float32(r * r)
-        np.maximum(shape, 1 - d2, out=shape)
+    # Base shape: the union of the puffs, cut flat at the base.
+    shape = _puff_union(_PUFFS, X, Y, Z)
     shape *= np.clip((Y + 0.12) / 0.12, 0, 1)
     height = np.clip((Y + 0.12) / (_TOP + 0.12), 0, 1)              # 0 at the base, 1 at the top
 
-    return _erode(shape, height, (x / 2, y / 2, z / 2), perlin, worley, rng, time)
+    return _erode(shape, height, (x / 2, y / 2, z / 2), seed, time)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -331,25 +339,19 @@ def _field_density(resolution: int, seed: int, time: float) -> np.ndarray:
     base) over a square, each eroded as the ``"cumulus"`` style is, on voxels twice as tall as
     wide; the noise is scaled to the small clouds (about 4 noise cloud widths per unit)."""
     nx, ny, nz = cloud_shape(resolution, "field")
-    perlin, worley, state = _tiles(seed)
-    rng = np.random.default_rng(seed)
-    rng.bit_generator.state = state
     x = (np.arange(nx, dtype=np.float64) + 0.5) / nx * 2 - 1
     y = (np.arange(ny, dtype=np.float64) + 0.5) / nx * 2 * VOXEL_ASPECT["field"]
     z = (np.arange(nz, dtype=np.float64) + 0.5) / nz * 2 - 1
     X = x.astype(np.float32)[:, None, None]
     Y = y.astype(np.float32)[None, :, None]
     Z = z.astype(np.float32)[None, None, :]
-    shape = np.zeros((nx, ny, nz), np.float32)
     base = max(_FIELD_BASE, 2.0 * VOXEL_ASPECT["field"] / nx)       # the lowest row stays empty
-    top = base
-    for cx, cy, cz, r in _field_clouds(seed, base):
-        d2 = ((X - cx) ** 2 + ((Y - cy) * 1.15) ** 2 + (Z - cz) ** 2) / np.float32(r * r)
-        np.maximum(shape, 1 - d2, out=shape)
-        top = max(top, cy + r / 1.15)
+    puffs = _field_clouds(seed, base)
+    shape = _puff_union(puffs, X, Y, Z)
+    top = max(cy + r / 1.15 for _, cy, _, r in puffs)
     shape *= np.clip((Y - base) / 0.02, 0, 1)
     height = np.clip((Y - base) / (top - base), 0, 1)
-    return _erode(shape, height, (x * 4, y * 4, z * 4), perlin, worley, rng, time)
+    return _erode(shape, height, (x * 4, y * 4, z * 4), seed, time)
 
 
 def cloud_density(resolution: int = 96, seed: int = 7, style: str = "cumulus", time: float = 0.0) -> np.ndarray:
