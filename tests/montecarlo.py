@@ -192,3 +192,73 @@ def cube_beam_mc(tau, albedo, g, beam_halfwidth, n_photons=100_000, seed=0, n_de
         out[name] = faces[f] / n
         out["stderr_" + name] = math.sqrt(max(faces_sq[f] / n - (faces[f] / n) ** 2, 0) / n)
     return out
+
+
+@nb.njit(cache=True)
+def _half_space(mu0, view, albedo, g, depth, n, seed):
+    """Photons enter z = 0 of the medium z in [0, depth] (optical depth units) along (sqrt(1 -
+    mu0^2), 0, mu0); at each collision a next-event estimate of the radiance scattered out of
+    z = 0 along the unit ``view`` (its z < 0). Returns the sums and squared sums of the
+    single-scattering and total estimates per photon."""
+    np.random.seed(seed)
+    vx, vy, vz = view
+    mu_v = -vz
+    s1 = s1q = st = stq = 0.0
+    for _ in range(n):
+        z = 0.0
+        ux, uy, uz = math.sqrt(1.0 - mu0 * mu0), 0.0, mu0
+        w = 1.0
+        first = True
+        single = total = 0.0
+        while w > 0.0:
+            z += uz * (-math.log(1.0 - np.random.random()))
+            if z < 0.0 or z > depth:
+                break
+            cos_t = ux * vx + uy * vy + uz * vz
+            # the scattered light's share toward the view, HG (supplement Eq. 1), seen through z / mu_v
+            p = (1.0 - g * g) / (4.0 * math.pi * (1.0 + g * g - 2.0 * g * cos_t) ** 1.5)
+            c = w * albedo * p * math.exp(-z / mu_v) / mu_v
+            total += c
+            if first:
+                single = c
+                first = False
+            w = _roulette(w * albedo)
+            ux, uy, uz = _scatter(ux, uy, uz, g)
+        s1 += single
+        s1q += single * single
+        st += total
+        stq += total * total
+    return s1, s1q, st, stq
+
+
+def half_space_mc(light, view, albedo, g, depth=math.inf, n_photons=400_000, seed=0):
+    """Radiance reflected by the plane-parallel medium below z = 0 (world), optical thickness
+    ``depth`` (inf: a half-space), lit by a sun of unit irradiance travelling along ``light``
+    (its z < 0) and seen along ``view`` (the unit direction from the surface to the eye, z > 0).
+    Returns {"single", "total"} and their standard errors ("stderr_single", "stderr_total")."""
+    l = np.asarray(light, float) / np.linalg.norm(light)
+    v = np.asarray(view, float) / np.linalg.norm(view)
+    az = math.atan2(l[1], l[0]) if abs(l[0]) + abs(l[1]) > 0 else 0.0
+    c, s = math.cos(az), math.sin(az)       # turn the light's azimuth to +x; z into the medium
+    out = (c * v[0] + s * v[1], -s * v[0] + c * v[1], -v[2])
+    mu0 = -l[2]
+    s1, s1q, st, stq = _half_space(mu0, out, float(albedo), float(g), min(float(depth), 1e300),
+                                   int(n_photons), int(seed))
+    n = n_photons
+    # per photon entering the surface; photons per unit area = irradiance times mu0
+    return {"single": mu0 * s1 / n, "total": mu0 * st / n,
+            "stderr_single": mu0 * math.sqrt(max(s1q / n - (s1 / n) ** 2, 0) / n),
+            "stderr_total": mu0 * math.sqrt(max(stq / n - (st / n) ** 2, 0) / n)}
+
+
+def chandrasekhar_h(mu, albedo, n=64, iterations=400):
+    """Chandrasekhar's H function of isotropic scattering with single-scattering ``albedo``, at
+    cosines ``mu``: H(mu) = 1 + mu H(mu) (albedo / 2) int_0^1 H(m) / (mu + m) dm, iterated on an
+    n-point Gauss-Legendre rule of [0, 1] (Chandrasekhar, Radiative Transfer, 1950, Ch. V)."""
+    x, wq = np.polynomial.legendre.leggauss(n)
+    m, wq = 0.5 * (x + 1), 0.5 * wq
+    H = np.ones(n)
+    for _ in range(iterations):
+        H = 1.0 / (1.0 - m * 0.5 * albedo * np.sum(wq * H / (m[:, None] + m), axis=1))
+    mu = np.asarray(mu, float)
+    return 1.0 / (1.0 - mu * 0.5 * albedo * np.sum(wq * H / (mu[..., None] + m), axis=-1))
