@@ -2,8 +2,7 @@
 import numpy as np
 import pytest
 
-import montecarlo as mc
-from montecarlo import cube_beam_mc, slab_mc
+from montecarlo import chandrasekhar_h, cube_beam_mc, half_space_mc, slab_mc
 
 
 def test_slab_pure_absorber_is_beer_lambert():
@@ -44,11 +43,12 @@ def test_cube_conservative_all_energy_leaves():
 def test_half_space_matches_chandrasekhar_isotropic():
     """The half-space oracle against the exact albedo problem of isotropic scattering: the
     reflected radiance per unit irradiance is (albedo / 4 pi) mu0 / (mu0 + mu) H(mu0) H(mu)
-    (Chandrasekhar 1950, Eq. IV.(43) with pi F = 1), its first order the same without the Hs."""
+    (Chandrasekhar, Radiative Transfer, 1950, Ch. IV, with pi F = 1), its first order the same
+    without the Hs."""
     light, view, albedo = np.array([0.6, 0.0, -0.8]), np.array([0.0, 0.28, 0.96]), 0.9
     mu0, mu = 0.8, 0.96 / np.linalg.norm(view)
-    r = mc.half_space_mc(light, view, albedo, 0.0, n_photons=200_000)
+    r = half_space_mc(light, view, albedo, 0.0, n_photons=200_000)
     first = albedo / (4 * np.pi) * mu0 / (mu0 + mu)
-    H0, H1 = mc.chandrasekhar_h([mu0, mu], albedo)
+    H0, H1 = chandrasekhar_h([mu0, mu], albedo)
     assert r["single"] == pytest.approx(first, rel=5 * r["stderr_single"] / first + 1e-3)
     assert r["total"] == pytest.approx(first * H0 * H1, rel=4 * r["stderr_total"] / r["total"] + 2e-3)
