@@ -28,9 +28,10 @@ from popvol.scene import Scene          # noqa: E402
 
 LIGHT = np.array([0.3, -0.4, -1.0]) / np.linalg.norm([0.3, -0.4, -1.0])
 ALBEDO, G = 0.9, 0.5
+N = 16      # the slab is N x N x N/4 voxels
 
 
-def slab_scene(scale, resolution, n=16):
+def slab_scene(scale, resolution, n=N):
     """A slab of unit density, n x n x n/4 voxels of 1/8, its top face z = 0 seen from above."""
     rho = np.ones((n, n, n // 4), np.float32)
     h = 1.0 / 8
@@ -51,9 +52,7 @@ def main():
           + " | ".join(f"{r} cells: total (single)" for r in resolutions) + " |")
     print("|---" * (2 + len(resolutions)) + "|")
     for tau in taus:
-        scene = slab_scene(tau * 8, resolutions[0])
-        depth = tau * scene.medium.shape[2]
-        mc = half_space_mc(LIGHT, [0.0, 0.0, 1.0], ALBEDO, G, depth=depth, n_photons=200_000)
+        mc = half_space_mc(LIGHT, [0.0, 0.0, 1.0], ALBEDO, G, depth=tau * (N // 4), n_photons=200_000)
         cells = []
         for res in resolutions:
             scene = slab_scene(tau * 8, res)
