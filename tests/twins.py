@@ -84,6 +84,40 @@ def jacobi_step(W, Wa, Th, Dh, rule, periodic, inv_area, phi, phia, tally, hando
     return W_new, Wa_new
 
 
+def binned_step(W, ab, shares, Th, Dh, periodic, inv_area, phi, phia, tally, handover=-1.0,
+                diffusive=None, Q=None):
+    """One iteration of the binned wavefront (twin of kernels.binned.binned_send + binned_gather):
+    W (n_b, n_d, n_u, n_v) holds each cell's power in the anisotropy bins ``ab``; every bin's
+    power is split by its row of ``shares`` (front, side, back, and their outgoing
+    anisotropies), moved one cell (Th, Dh of sender and receiver) and its energy and first
+    moment split between the two bins around its new anisotropy. Returns the next W, float64."""
+    Th, Dh = Th.astype(np.float64), Dh.astype(np.float64)
+    W = np.asarray(W, np.float64)
+    phi += W.sum(axis=0) * inv_area
+    phia += np.tensordot(ab, W, axes=1) * inv_area
+    W_new = np.zeros(W.shape)
+    moves = [(0, +1, 0, TRANSMITTED, False), (0, -1, 2, REFLECTED, False)]
+    moves += [(axis, step, 1, SIDE_ESCAPED, periodic) for axis in (1, 2) for step in (1, -1)]
+    n = len(ab)
+    for b in range(n):
+        for axis, step, p, slot, wrap in moves:
+            e_in, ea_in = _move(W[b] * shares[b, p], np.full(W[b].shape, shares[b, 3 + p]), Th, Dh,
+                                axis, step, wrap, tally, slot)
+            a = np.divide(ea_in, e_in, out=np.zeros(e_in.shape), where=e_in > 0)
+            if handover > 0:
+                leave = (e_in > 0) & (np.abs(a) < handover * diffusive)
+                Q[0] += np.where(leave, e_in, 0.0)
+                Q[1] += np.where(leave, ea_in, 0.0)
+                e_in = np.where(leave, 0.0, e_in)
+            lower = np.clip(np.floor((a + 1.0) * (n - 1) / 2), 0, n - 2).astype(int)
+            lam = (a - ab[lower]) / (ab[lower + 1] - ab[lower])
+            for t in range(n - 1):
+                at = lower == t
+                W_new[t] += np.where(at, e_in * (1.0 - lam), 0.0)
+                W_new[t + 1] += np.where(at, e_in * lam, 0.0)
+    return W_new
+
+
 def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, phia, tally,
           band_rows=16, handover=-1.0, diffusive=None, Q=None):
     """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), cell by cell, in place.

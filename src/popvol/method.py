@@ -113,9 +113,11 @@ def _is_zero(value) -> bool:
 KNOBS: tuple[Knob, ...] = (
     Knob("resolution", 128, (2, 4096), "Cells along the longest side of each light's propagation domain.",
          cli=("render", "compare")),
-    Knob("solver", "sweep", ("sweep", "jacobi"), "Propagation solver.",
-         "Gauss-Seidel sweeps along the light (fast) or the Jacobi wavefront (reference semantics: "
-         "each iteration moves every packet one cell). Point lights always sweep.",
+    Knob("solver", "sweep", ("sweep", "jacobi", "binned"), "Propagation solver.",
+         "Gauss-Seidel sweeps along the light (fast), the Jacobi wavefront (reference semantics: "
+         "each iteration moves every packet one cell), or the Jacobi wavefront with each cell's light "
+         "kept in 17 fixed anisotropy bins instead of one merged lobe (linear in the light, so the "
+         "answer does not depend on the schedule; 5-40x slower). Point lights always sweep.",
          experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "

@@ -18,11 +18,13 @@ import numba
 import numpy as np
 
 from . import hg
+from .kernels import binned as KB
 from .kernels import propagation as K
 from .results import Budget, WalkResult
 
 SPLIT_TABLE_SIZE = 4097
 SOUTHWELL_FRACTION = 2.0      # cells send above twice the mean pending energy (sweep_until_converged)
+ANISOTROPY_BINS = 17          # the binned wavefront's bins per cell (anisotropy_bins): spacing 1/8
 
 
 @functools.lru_cache(maxsize=4)
@@ -41,6 +43,25 @@ def split_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
 def split_table32(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
     """:func:`split_table` in float32, what the kernels read (see kernels.propagation.split)."""
     return split_table(n).astype(np.float32)
+
+
+def anisotropy_bins(n: int = ANISOTROPY_BINS) -> np.ndarray:
+    """float64 (n,): the binned wavefront's anisotropies, evenly spaced over [-1, 1] (n odd, so
+    that a = 0 is a bin; a = 1 always is, for collimated light)."""
+    return np.linspace(-1.0, 1.0, n)
+
+
+@functools.lru_cache(maxsize=4)
+def bin_shares(n: int = ANISOTROPY_BINS, rule: str = "moment") -> np.ndarray:
+    """float64 (n, 6): for the lobe HG_a of each of :func:`anisotropy_bins`, the front share, the
+    share of EACH side neighbour and the back share (supplement Eq. 2, 4, 7, exact), then the
+    three parts' outgoing anisotropy before decay: their conditional mean cosines (rule
+    "moment") or a itself (rule "paper")."""
+    a = anisotropy_bins(n)
+    out = np.zeros((n, 6))
+    out[:, 0], out[:, 1], out[:, 2] = hg.split_fractions(a)
+    out[:, 3:] = np.stack(hg.conditional_mean_cosines(a), 1) if rule == "moment" else a[:, None]
+    return out
 
 
 def medium_factors(sigma_t: np.ndarray, sigma_s: np.ndarray, g: np.ndarray, h, decay: str
@@ -85,7 +106,7 @@ def direct_fluence(sigma_t: np.ndarray, h: float) -> np.ndarray:
 
 
 def default_max_iterations(shape, solver: str) -> int:
-    if solver == "jacobi":
+    if solver in ("jacobi", "binned"):
         return 40 * int(sum(shape))
     return 400
 
@@ -142,6 +163,50 @@ def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, 
     return in_flight, it
 
 
+def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tally, eps, diffusive, Q,
+                target, cap, progress=None) -> tuple[int, float, float]:
+    """The binned wavefront (kernels/binned.py) of :func:`walk_box`: returns (iterations, power in
+    flight, power the injection's half step absorbed). Accumulates into phi, phia, tally, Q. With
+    the hand-over, what is still pending when it stops goes to Q (it is at cell centres)."""
+    shape = Th.shape
+    ab = anisotropy_bins()
+    shares = bin_shares(len(ab), rule)
+    W = np.zeros((len(ab),) + shape, np.float32)
+    W_next = np.zeros_like(W)
+    # the injected light crosses half a cell to the first centres (a0 decayed by Dh[0])
+    arrived = (injection * Th[0]).astype(np.float64)
+    a = np.float64(a0) * Dh[0]
+    leave = np.zeros(a.shape, bool)
+    if eps > 0:
+        leave = np.abs(a) < eps * diffusive[0]
+        Q[0, 0] += np.where(leave, arrived, 0.0).astype(np.float32)
+        Q[1, 0] += np.where(leave, arrived * a, 0.0).astype(np.float32)
+    x = np.clip((a + 1.0) * 0.5 * (len(ab) - 1), 0.0, len(ab) - 1.0)
+    t = np.minimum(x.astype(np.int64), len(ab) - 2)
+    lam = x - t
+    kept = np.where(leave, 0.0, arrived)
+    iu, iv = np.indices(t.shape)
+    np.add.at(W, (t, 0, iu, iv), (kept * (1.0 - lam)).astype(np.float32))
+    np.add.at(W, (t + 1, 0, iu, iv), (kept * lam).astype(np.float32))
+    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+    in_flight = float(np.sum(W, dtype=np.float64))
+    it = 0
+    while in_flight > target and it < cap:
+        KB.binned_send(W, ab, shares, Th, periodic, inv_area, phi, phia, tally)
+        in_flight = KB.binned_gather(W, ab, shares, Th, Dh, periodic, float(eps), diffusive, Q, W_next, tally)
+        W, W_next = W_next, W
+        it += 1
+        if progress is not None and it % 16 == 0:
+            progress(it, in_flight / max(float(np.sum(injection, dtype=np.float64)), 1e-300))
+    if eps > 0:
+        region = diffusive > 0
+        Q[0] += np.where(region, W.sum(axis=0, dtype=np.float64), 0.0).astype(np.float32)
+        Q[1] += np.where(region, np.tensordot(ab, W.astype(np.float64), axes=1), 0.0).astype(np.float32)
+        W[:, region] = 0.0
+        in_flight = float(np.sum(W, dtype=np.float64))
+    return it, in_flight, absorbed
+
+
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
              max_iterations: int = 0, periodic: bool = False, progress=None,
@@ -155,7 +220,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             The light travels half a cell to the first centre, so it is attenuated by Th[0].
         a0: anisotropy of the injected lobe (1 = collimated).
         h: cell size; fluence accumulates W / h^2 per visit.
-        rule: "moment" or "paper"; solver: "sweep" or "jacobi".
+        rule: "moment" or "paper"; solver: "sweep", "jacobi" or "binned" (the Jacobi wavefront
+            with each cell's light in fixed anisotropy bins, linear in the light:
+            :func:`walk_binned`).
         tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
             (0 = automatic). With ``handover`` and the sweep solver, what is then still
             pending in the diffusion region is handed over (:func:`hand_over_pending`).
@@ -199,6 +266,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             it += 1
             if progress is not None and it % 16 == 0:
                 progress(it, in_flight / budget.injected)
+    elif solver == "binned":
+        it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,
+                                                     tally, eps, diffusive, Q, target, cap, progress)
     else:
         # pending packets have arrived at the face of their cell; the cell applies its half step
         W[0] = injection

@@ -27,7 +27,7 @@ NumPy twins (exact HG splits, no table): tests/twins.py (jacobi_step, sweep, han
 import numba as nb
 import numpy as np
 
-from .reduction import ordered_sum
+from .reduction import add_parts, ordered_sum
 
 REFLECTED, TRANSMITTED, SIDE_ESCAPED, ABSORBED = 0, 1, 2, 3
 
@@ -140,8 +140,7 @@ def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out
         part[TRANSMITTED, k] = trans
         part[SIDE_ESCAPED, k] = side_out
         part[ABSORBED, k] = absorbed
-    for c in range(4):
-        tally[c] += ordered_sum(part[c])
+    add_parts(part, tally)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)

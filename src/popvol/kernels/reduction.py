@@ -17,3 +17,10 @@ def ordered_sum(part):
     for k in range(part.shape[0]):
         total += part[k]
     return total
+
+
+@nb.njit(fastmath=True, cache=True)
+def add_parts(part, tally):
+    """tally[c] += the ordered sum of row c of ``part`` (per-slice partial sums), for every c."""
+    for c in range(part.shape[0]):
+        tally[c] += ordered_sum(part[c])

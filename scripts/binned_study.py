@@ -1,0 +1,68 @@
+"""The walk with and without the energy-weighted merge of lobes: the default sweeps against the
+binned wavefront (experimental.solver = "binned", kernels/binned.py: each cell's light kept in
+fixed anisotropy bins, so the walk is linear in the light), each with the diffusion stage and
+alone, against Mitsuba (run from the repository root, with ../shared beside the checkout):
+
+    python scripts/binned_study.py [--resolution 64] [NAME ...]
+
+NAME: "regression" (tests/fixtures/regression_cloud), a scene of scenes/accuracy/ (reference in
+build/accuracy/, made by scripts/accuracy_table.py) or of the gallery (examples/NAME.toml,
+reference build/gallery/NAME_ref.exr); scenes without a reference are skipped. Default: the
+regression fixture, wdas_angle_090 and the gallery's scenes. Prints the metric of
+``popvol compare`` per scene and variant.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import popvol
+from popvol import metrics
+from popvol.reference import load_reference
+
+ROOT = Path(__file__).resolve().parents[1]
+NAMES = ["regression", "wdas_angle_090", "wdas_side", "wdas_front", "wdas_silver", "field_sun", "dragon_sky",
+         "demo_dusk"]
+VARIANTS = (("sweeps + diffusion (default)", "sweep", "diffusion"), ("binned + diffusion", "binned", "diffusion"),
+            ("sweeps, walk alone", "sweep", "walk"), ("binned, walk alone", "binned", "walk"))
+
+
+def case(name: str) -> tuple[Path, Path]:
+    if name == "regression":
+        return ROOT / "tests" / "fixtures" / "regression_cloud.toml", ROOT / "tests" / "fixtures" / "regression_cloud.exr"
+    if (ROOT / "scenes" / "accuracy" / f"{name}.toml").exists():
+        return ROOT / "scenes" / "accuracy" / f"{name}.toml", ROOT / "build" / "accuracy" / f"{name}.exr"
+    return ROOT / "examples" / f"{name}.toml", ROOT / "build" / "gallery" / f"{name}_ref.exr"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--resolution", type=int, default=64)
+    ap.add_argument("names", nargs="*", default=NAMES)
+    args = ap.parse_args()
+    print("| scene | variant | relMSE | brightness | dim / mid / bright | iterations | solve + render |")
+    print("|---|---|---|---|---|---|---|")
+    for name in args.names:
+        scene_path, ref_path = case(name)
+        if not ref_path.exists():
+            print(f"skipped {name}: no {ref_path.relative_to(ROOT)}")
+            continue
+        ref = load_reference(ref_path)
+        h, w = ref.image.shape[:2]
+        for label, solver, isotropic in VARIANTS:
+            scene = popvol.load_scene(scene_path, width=w, height=h, resolution=args.resolution, solver=solver,
+                                      isotropic=isotropic)
+            t0 = time.perf_counter()
+            solution = popvol.solve(scene)
+            image = popvol.render(scene, solution)
+            seconds = time.perf_counter() - t0
+            c = metrics.compare(image, ref.image, metrics.medium_mask(ref.image, scene))
+            b = c["brightness_bands"]
+            print(f"| {name} | {label} | {c['relmse']:.3f} | x{c['brightness_ratio']:.3f} | x{b['dim']:.3f} / "
+                  f"x{b['mid']:.3f} / x{b['bright']:.3f} | {solution.domains[0].result.iterations} | "
+                  f"{seconds:.1f} s |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
