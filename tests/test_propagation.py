@@ -182,6 +182,17 @@ def test_binned_kernel_equals_numpy_twin(rule, periodic, handover, rng):
     assert W.sum(dtype=np.float64) == pytest.approx(W_r.sum() + tally_r.sum() + Q_r[0].sum(), rel=1e-9)
 
 
+def test_binned_walk_refuses_a_domain_it_cannot_hold(monkeypatch):
+    """17 bins twice per cell: a domain whose bins would not fit in memory is refused with a
+    one-line error naming the resolution, before anything is allocated."""
+    from popvol import domains
+    from popvol.errors import PopvolError
+    monkeypatch.setattr(domains, "available_memory", lambda: 10_000)
+    Th, Dh = uniform_factors((8, 8, 8), 1.0, 0.9, 0.5, 0.1)
+    with pytest.raises(PopvolError, match=r"method.resolution .*17 anisotropy bins of a 8x8x8 domain"):
+        walk_box(Th, Dh, np.full((8, 8), 0.01, np.float32), 1.0, 0.1, solver="binned")
+
+
 def test_binned_walk_is_linear_in_the_light(rng):
     """Walking two lights apart and adding their fields gives the fields of walking them
     together (the binned wavefront never merges lobes), to float32 rounding; the sweeps'

@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from . import hg
+from .domains import check_memory
 from .kernels import binned as KB
 from .kernels import propagation as K
 from .results import Budget, WalkResult
@@ -171,6 +172,8 @@ def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tall
     shape = Th.shape
     ab = anisotropy_bins()
     shares = bin_shares(len(ab), rule)
+    check_memory(2 * len(ab) * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'binned')",
+                 f"the {len(ab)} anisotropy bins of a {'x'.join(map(str, shape))} domain (twice)")
     W = np.zeros((len(ab),) + shape, np.float32)
     W_next = np.zeros_like(W)
     # the injected light crosses half a cell to the first centres (a0 decayed by Dh[0])
@@ -224,8 +227,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             with each cell's light in fixed anisotropy bins, linear in the light:
             :func:`walk_binned`).
         tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
-            (0 = automatic). With ``handover`` and the sweep solver, what is then still
-            pending in the diffusion region is handed over (:func:`hand_over_pending`).
+            (0 = automatic). With ``handover`` and the sweep or binned solver, what is then
+            still pending in the diffusion region is handed over (:func:`hand_over_pending`).
         periodic: wrap the lateral faces (an infinite slab; used by the slab tests).
         progress: optional callable(iteration, residual).
         handover: (method.handover_scale, float32 (n_d, n_u, n_v) :func:`handover_factor`): a
