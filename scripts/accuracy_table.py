@@ -1,6 +1,7 @@
 """Write docs/ACCURACY.md: the default method and the walk alone against Mitsuba 3 references on
-the accuracy suite, at 64, 128 and 256 cells, in the metric of ``popvol compare`` (run from the
-repository root, with ../shared beside the checkout):
+the accuracy suite, at 64, 128 and 256 cells, in the metric of ``popvol compare`` (with, for the
+notes, the Jacobi wavefront at 128 cells and the binned one at 64). Run from the repository root,
+with ../shared beside the checkout (about 25 minutes on 2 cores once the references exist):
 
     python scripts/accuracy_table.py [--spp 4096] [--variant llvm_ad_rgb]
 
@@ -11,8 +12,8 @@ The suite:
   build/accuracy/NAME.exr (not in git), rendered here with ``popvol.reference`` when missing or
   short of ``--spp`` (times SPP_SCALE for the scenes that cost Mitsuba far more per sample) and
   extended, never edited, on later runs;
-- the gallery's scenes (examples/NAME.toml; references build/gallery/NAME_ref.exr, made as
-  docs/GALLERY.md says; skipped, with the reason, without one).
+- the gallery's scenes that the suite has no copy of (examples/NAME.toml; references
+  build/gallery/NAME_ref.exr, made as docs/GALLERY.md says; skipped, with the reason, without one).
 
 A scene whose volume is not in ../shared is skipped with the reason. ``resolution`` is varied;
 a sky's or an HDR map's domains keep ``environment_resolution`` (64) at every row, so only the sun's

@@ -1,5 +1,5 @@
 """Numba kernels of the binned wavefront: a walk that is linear in the light (docs/METHOD.md,
-"The schedule"; experimental.solver = "binned").
+"The schedule" and "The merge itself"; experimental.solver = "binned").
 
 The sweeps and the Jacobi wavefront (kernels/propagation.py) merge every packet that meets in a
 cell into one lobe of energy-weighted anisotropy (supplement Eq. 12), which is not additive:
