@@ -6,7 +6,8 @@ attenuated by the half-step transmittance of sender and receiver and with the an
 decayed (supplement Eq. 12 or its Poisson form), and adds the visit to the fluence phi and phi
 a. Gauss-Seidel sweeps along the principal ordinate (kernels/propagation.py for a rectilinear
 domain, kernels/spherical.py for a point light's) or a Jacobi wavefront repeat this until the
-power still in flight is below the tolerance. With the diffusion stage, packets whose lobe has
+power still in flight is below the tolerance; the experimental binned wavefront
+(kernels/binned.py) keeps each cell's light in fixed anisotropy bins instead of one merged lobe. With the diffusion stage, packets whose lobe has
 spread leave the walk (docs/METHOD.md, "Hand-over").
 """
 from __future__ import annotations
