@@ -177,8 +177,7 @@ def test_binned_kernel_equals_numpy_twin(rule, periodic, handover, rng):
     np.testing.assert_allclose(phia, phia_r, rtol=1e-6, atol=1e-6)
     np.testing.assert_allclose(tally, tally_r, rtol=2e-5, atol=1e-6)
     assert in_flight == pytest.approx(W_r.sum(), rel=2e-5)
-    # the step keeps every bin's energy and first moment: what went in = what arrived + escaped
-    # + absorbed + handed over, and the first moment arriving is the parts' decayed moments
+    # the step keeps energy: what went in = what arrived + escaped + absorbed + handed over
     assert W.sum(dtype=np.float64) == pytest.approx(W_r.sum() + tally_r.sum() + Q_r[0].sum(), rel=1e-9)
 
 

@@ -178,21 +178,10 @@ def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tall
     W = np.zeros((len(ab),) + shape, np.float32)
     W_next = np.zeros_like(W)
     # the injected light crosses half a cell to the first centres (a0 decayed by Dh[0])
-    arrived = (injection * Th[0]).astype(np.float64)
-    a = np.float64(a0) * Dh[0]
-    leave = np.zeros(a.shape, bool)
-    if eps > 0:
-        leave = np.abs(a) < eps * diffusive[0]
-        Q[0, 0] += np.where(leave, arrived, 0.0).astype(np.float32)
-        Q[1, 0] += np.where(leave, arrived * a, 0.0).astype(np.float32)
-    x = np.clip((a + 1.0) * 0.5 * (len(ab) - 1), 0.0, len(ab) - 1.0)
-    t = np.minimum(x.astype(np.int64), len(ab) - 2)
-    lam = x - t
-    kept = np.where(leave, 0.0, arrived)
-    iu, iv = np.indices(t.shape)
-    np.add.at(W, (t, 0, iu, iv), (kept * (1.0 - lam)).astype(np.float32))
-    np.add.at(W, (t + 1, 0, iu, iv), (kept * lam).astype(np.float32))
+    KB.inject(W, ab, (injection * Th[0]).astype(np.float64), np.float64(a0) * Dh[0].astype(np.float64),
+              float(eps), diffusive, Q)
     absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+    injected = float(np.sum(injection, dtype=np.float64))
     in_flight = float(np.sum(W, dtype=np.float64))
     it = 0
     while in_flight > target and it < cap:
@@ -201,7 +190,7 @@ def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tall
         W, W_next = W_next, W
         it += 1
         if progress is not None and it % 16 == 0:
-            progress(it, in_flight / max(float(np.sum(injection, dtype=np.float64)), 1e-300))
+            progress(it, in_flight / max(injected, 1e-300))
     if eps > 0:
         region = diffusive > 0
         Q[0] += np.where(region, W.sum(axis=0, dtype=np.float64), 0.0).astype(np.float32)

@@ -45,6 +45,29 @@ def rebin(W, ab, k, i, j, e, a):
     W[t + 1, k, i, j] += e * lam
 
 
+@nb.njit(inline="always", cache=True)
+def arrive(W, ab, k, i, j, e, a, handover, diffusive, Q):
+    """A part of energy e and anisotropy a arrives at the centre of cell (k, i, j): it is handed
+    over (|a| < handover * diffusive[k, i, j]: added to Q[0], Q[1]) or binned into W (:func:`rebin`).
+    Returns True if it was binned (it stays in flight)."""
+    if handover > 0.0 and abs(a) < handover * diffusive[k, i, j]:
+        Q[0, k, i, j] += e
+        Q[1, k, i, j] += e * a
+        return False
+    rebin(W, ab, k, i, j, e, a)
+    return True
+
+
+@nb.njit(cache=True)
+def inject(W, ab, e, a, handover, diffusive, Q):
+    """The light injected through the face k = 0 arrives at the centres of slice 0: energy
+    e[i, j], anisotropy a[i, j] (float64 (n_u, n_v)), each part as :func:`arrive` says."""
+    for i in range(e.shape[0]):
+        for j in range(e.shape[1]):
+            if e[i, j] > 0.0:
+                arrive(W, ab, 0, i, j, e[i, j], a[i, j], handover, diffusive, Q)
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def binned_send(W, ab, shares, Th, periodic, inv_area, phi, phia, tally):
     """Accumulate the wave into (phi, phia) and tally what the senders' half steps absorb and
@@ -123,13 +146,8 @@ def binned_gather(W, ab, shares, Th, Dh, periodic, handover, diffusive, Q, W_out
                         e = w * shares[b, p] * t_src          # after the sender's half step
                         absorbed += e * (1.0 - th)
                         e *= th
-                        a = shares[b, 3 + p] * d
-                        if handover > 0.0 and abs(a) < handover * diffusive[k, i, j]:
-                            Q[0, k, i, j] += e
-                            Q[1, k, i, j] += e * a
-                            continue
-                        rebin(W_out, ab, k, i, j, e, a)
-                        in_flight += e
+                        if arrive(W_out, ab, k, i, j, e, shares[b, 3 + p] * d, handover, diffusive, Q):
+                            in_flight += e
         part[0, k] = in_flight
         part[1, k] = absorbed
     tally[ABSORBED] += ordered_sum(part[1])
