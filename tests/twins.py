@@ -118,6 +118,41 @@ def binned_step(W, ab, shares, Th, Dh, periodic, inv_area, phi, phia, tally, han
     return W_new
 
 
+def ordinates_step(W, Wa, Th, Dh, inv_area, phi, F, tally):
+    """One iteration of the six-ordinate wavefront (twin of kernels.ordinates.ordinates_step).
+    W, Wa (6, n_d, n_u, n_v): power and power times anisotropy pending in ordinate o = 0..5
+    (+d, -d, +u, -u, +v, -v) of each cell; a packet's lobe HG_a about e_o splits by the cone
+    partition about e_o: front on in ordinate o (a' = m_front), back into ordinate o ^ 1
+    (a' = -m_back), each side part into the ordinate of its own direction (a' = the wedge's mean
+    cosine about that direction, hg.side_wedge_mean_cosine); moved one cell (Th, Dh of sender
+    and receiver). Accumulates phi and F (3, ...), the first moment in the domain's frame.
+    Returns the next (W, Wa), float64."""
+    Th, Dh = Th.astype(np.float64), Dh.astype(np.float64)
+    W, Wa = np.asarray(W, np.float64), np.asarray(Wa, np.float64)
+    W_new, Wa_new = np.zeros(W.shape), np.zeros(W.shape)
+    for o in range(6):
+        sign = 1.0 - 2.0 * (o % 2)
+        phi += W[o] * inv_area
+        F[o // 2] += sign * Wa[o] * inv_area
+        a = np.clip(np.divide(Wa[o], W[o], out=np.zeros(W[o].shape), where=W[o] > 0), -1.0, 1.0)
+        fr, sd, bk = hg.split_fractions(a)
+        mf, _, mb = hg.conditional_mean_cosines(a)
+        mj = hg.side_wedge_mean_cosine(a)
+        for n in range(6):
+            axis, step = n // 2, 1 - 2 * (n % 2)
+            if n == o:
+                e, m, q = W[o] * fr, mf, o
+            elif n == o ^ 1:
+                e, m, q = W[o] * bk, -mb, n
+            else:
+                e, m, q = W[o] * sd, mj, n
+            slot = (TRANSMITTED if step > 0 else REFLECTED) if axis == 0 else SIDE_ESCAPED
+            e_in, ea_in = _move(e, m, Th, Dh, axis, step, False, tally, slot)
+            W_new[q] += e_in
+            Wa_new[q] += ea_in
+    return W_new, Wa_new
+
+
 def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, phia, tally,
           band_rows=16, handover=-1.0, diffusive=None, Q=None):
     """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), cell by cell, in place.
@@ -212,15 +247,15 @@ def walk_lobes(p, pa, p_dir, mu, g):
     return val + np.where(rest > 0, rest * hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)), 0.0)
 
 
-def diffuse_lobe(pd, J, d, g):
+def diffuse_lobe(pd, J, d, g, cap=0.5):
     """Twin of kernels.render.diffuse_lobe, whole arrays: phi_d f_hg(-d . J/|J|; g min(|J| /
-    phi_d, 1/2)), phi_d / 4 pi where J = 0, 0 where phi_d <= 0; J and d (..., 3)."""
+    phi_d, cap)), phi_d / 4 pi where J = 0, 0 where phi_d <= 0; J and d (..., 3)."""
     pd, g = np.asarray(pd, np.float64), np.asarray(g, np.float64)
     J = np.asarray(J, np.float64)
     jn = np.linalg.norm(J, axis=-1)
     mu = -np.sum(J * d, axis=-1) / np.where(jn > 0, jn, 1.0)
-    A = np.minimum(jn / np.where(pd > 0, pd, 1.0), 0.5)
-    lobe = np.where(jn > 0, hg.f_hg(mu, g * A), 1 / (4 * np.pi))
+    A = np.minimum(jn / np.where(pd > 0, pd, 1.0), cap)
+    lobe = np.where(jn > 0, hg.f_hg(mu, np.clip(g * A, -0.9999, 0.9999)), 1 / (4 * np.pi))
     return np.where(pd > 0, pd * lobe, 0.0)
 
 
@@ -249,7 +284,8 @@ def in_scattering_source(scene, solution):
                 mu = -(d @ solution.directions[l])
                 val += walk_lobes(solution.phi[l, c], solution.phia[l, c], solution.direct[l, c], mu, g)
             if solution.phid.shape[0]:
-                val += diffuse_lobe(solution.phid[l, c], np.moveaxis(solution.flux[l, c], 0, -1), d, g)
+                val += diffuse_lobe(solution.phid[l, c], np.moveaxis(solution.flux[l, c], 0, -1), d, g,
+                                    solution.lobe_cap[l])
             out += val[..., None] * _power(solution, l, c, n_ch)
     return np.where(voxels_seen(med.density)[..., None], out, 0.0)
 
@@ -320,7 +356,7 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
                 if solution.phid.shape[0] and not from_source:     # the diffuse lobe, about its flux J
                     pd = float(trilinear(solution.phid[l, c], q))
                     J = np.array([float(trilinear(solution.flux[l, c, k], q)) for k in range(3)])
-                    Ls += float(diffuse_lobe(pd, J, d, g)) * E
+                    Ls += float(diffuse_lobe(pd, J, d, g, solution.lobe_cap[l])) * E
         sigma_t = med.scale * rho
         T_seg = np.exp(-sigma_t * ds)
         L += np.where(sigma_t > 0, Tv * (1 - T_seg) * albedo * Ls, 0.0)

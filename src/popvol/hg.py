@@ -135,6 +135,25 @@ def conditional_mean_cosines(a):
     return m_front, m_side, m_back
 
 
+def side_wedge_mean_cosine(a, nodes: int = 64):
+    """Mean cosine of a side slice of HG_a about the slice's OWN axis e_n (the face normal it
+    is sent through): int (w . e_n) f dw / int f dw over theta in [pi/4, 3 pi/4] and one
+    azimuth quarter |phi| <= pi/4 about e_n, which is sqrt(2) int sqrt(1 - mu^2) f dmu / (pi/2
+    int f dmu) over mu in [-c, c] (Gauss-Legendre with ``nodes`` nodes). The six-ordinate
+    walk's side parts carry it (docs/METHOD.md, "Six ordinates"). Isotropic: (1 + pi/2) / pi =
+    0.8183; at |a| = 1, where the slice is empty, its limit 0.7887 (HG's tail tends to a
+    shape proportional to (1 -+ mu)^(-3/2))."""
+    a = np.asarray(a, np.float64)
+    c = COS_QUARTER_PI
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    mu, w = c * x, c * w
+    inner = np.clip(a, -1 + _NEAR_ONE, 1 - _NEAR_ONE)[..., None]
+    f = f_hg(mu, inner)
+    energy = (np.pi / 2) * (f * w).sum(-1)
+    moment = np.sqrt(2.0) * (f * np.sqrt(1 - mu * mu) * w).sum(-1)
+    return moment / energy
+
+
 def sample_hg(g, u):
     """mu distributed as HG_g for u uniform in [0, 1) (inverse of F_hg)."""
     g, u = np.broadcast_arrays(np.asarray(g, np.float64), np.asarray(u, np.float64))

@@ -113,11 +113,14 @@ def _is_zero(value) -> bool:
 KNOBS: tuple[Knob, ...] = (
     Knob("resolution", 128, (2, 4096), "Cells along the longest side of each light's propagation domain.",
          cli=("render", "compare")),
-    Knob("solver", "sweep", ("sweep", "jacobi", "binned"), "Propagation solver.",
+    Knob("solver", "sweep", ("sweep", "jacobi", "binned", "ordinates"), "Propagation solver.",
          "Gauss-Seidel sweeps along the light (fast), the Jacobi wavefront (reference semantics: "
-         "each iteration moves every packet one cell), or the Jacobi wavefront with each cell's light "
+         "each iteration moves every packet one cell), the Jacobi wavefront with each cell's light "
          "kept in 17 fixed anisotropy bins instead of one merged lobe (linear in the light, so the "
-         "answer does not depend on the schedule; 5-40x slower). Point lights always sweep.",
+         "answer does not depend on the schedule; 5-40x slower), or the Jacobi wavefront with one "
+         "lobe per lattice direction, so that light sent sideways keeps going sideways; a sun's "
+         "six-ordinate walk carries all its light, with no hand-over (needs `rule = \"moment\"`; "
+         "docs/METHOD.md, \"Six ordinates\"). Point lights always sweep.",
          experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
@@ -168,6 +171,9 @@ class _MethodBase:
         it as int, float or str. Returns self."""
         for k in KNOBS:
             setattr(self, k.name, k.check(getattr(self, k.name), src))
+        if self.solver == "ordinates" and self.rule != "moment":
+            raise PopvolError(f"{src}: experimental.solver = 'ordinates' needs experimental.rule = 'moment' "
+                              f"(got {self.rule!r}): its side parts carry their own slice's mean cosine")
         return self
 
     def experimental_changes(self) -> dict:

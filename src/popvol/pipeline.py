@@ -19,6 +19,7 @@ import numpy as np
 from .diffusion import solve_diffusion, warm_guess
 from .domains import check_memory
 from .errors import PopvolError
+from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
 from .results import DomainSolution, PointFields, Solution
 
@@ -46,7 +47,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     t1 = time.perf_counter()
     walk = domain.walk(optics, method, progress)
     ds = DomainSolution(light, domain, walk, t1 - t0, channel)
-    if method.isotropic == "diffusion":
+    if walk.handed is not None:         # the diffusion stage (not for a sun's six-ordinate walk)
         t2 = time.perf_counter()
         hand = domain.hand_over(walk, optics, medium, method, channel)
         x0 = None
@@ -63,6 +64,23 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     elif warm is not None:
         ds.warm_note = "cold: no diffusion stage (the walk always starts cold)"
     return ds
+
+
+def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
+    """The six-ordinate walk's fields on the medium's grid (docs/METHOD.md, "Six ordinates"):
+    its unscattered light as the walk's lobe (outs = phi, phia, phi_dir, all set to phi_dir,
+    a delta along the light) and the rest, phi - phi_dir (at least 0) with first moment
+    F - phi_dir d, as one lobe about its own moment in ``phid`` and ``flux`` (float32 (3, nx,
+    ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1."""
+    direct = walk.direct if walk.direct is not None else np.zeros_like(walk.phi)
+    rest = np.maximum(walk.phi - direct, 0.0)
+    F = walk.flux.copy()
+    F[0] -= direct
+    Fw = np.tensordot(dom.frame.T.astype(np.float32), F, axes=1)
+    domain_to_world((direct, rest, Fw[0], Fw[1], Fw[2]), dom.frame, dom.origin, dom.h, medium.origin,
+                    medium.voxel_size, (outs[2], phid, flux[0], flux[1], flux[2]), needed)
+    outs[0][...] = outs[2]
+    outs[1][...] = outs[2]
 
 
 def warm_domains(warm, scene) -> tuple[dict, str]:
@@ -163,12 +181,14 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     phia = np.zeros_like(phi)
     direct = np.zeros_like(phi)
     diffusion = scene.method.isotropic == "diffusion"
-    n_diffuse = n if diffusion else 0
-    if diffusion:
+    ordinates = scene.method.solver == "ordinates"
+    n_diffuse = n if diffusion or ordinates else 0
+    if n_diffuse:
         check_memory(4 * n * n_ch * med.density.size * 4, f"{med.source}: medium",
                      f"diffusion fields of {n} light(s) x {n_ch} channel(s)")
-    phid = np.zeros((n_diffuse, n_ch) + (med.shape if diffusion else (1, 1, 1)), np.float32)
-    flux = np.zeros((n_diffuse, n_ch, 3) + (med.shape if diffusion else (1, 1, 1)), np.float32)
+    phid = np.zeros((n_diffuse, n_ch) + (med.shape if n_diffuse else (1, 1, 1)), np.float32)
+    flux = np.zeros((n_diffuse, n_ch, 3) + (med.shape if n_diffuse else (1, 1, 1)), np.float32)
+    lobe_cap = np.full(n, MAX_DIFFUSE_ANISOTROPY)
     key = (medium_key(med), method_key(scene.method))
     old = {}
     if reuse is not None and reuse.key == key:
@@ -183,8 +203,9 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
             if prev is not None:
                 j = prev.light_index
                 phi[i, ch], phia[i, ch], direct[i, ch] = reuse.phi[j, ch], reuse.phia[j, ch], reuse.direct[j, ch]
-                if diffusion:
+                if n_diffuse:
                     phid[i, ch], flux[i, ch] = reuse.phid[j, ch], reuse.flux[j, ch]
+                lobe_cap[i] = reuse.lobe_cap[j]
                 sols.append(dataclasses.replace(prev, light=light, light_index=i, reused=True, warm=False,
                                                 warm_note="reused" if warm is not None else ""))
                 continue
@@ -203,8 +224,13 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                 ds.warm_note = note
             ds.light_index = i
             t0 = time.perf_counter()
-            ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
-            if diffusion:
+            if ds.result.flux is not None:
+                ordinate_fields(ds.result, ds.domain, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]),
+                                phid[i, ch], flux[i, ch])
+                lobe_cap[i] = 1.0
+            else:
+                ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
+            if ds.result.diffusion is not None:
                 d, grid = ds.result.diffusion, ds.diffusion_grid
                 # world component c of J = sum over the grid axes a of frame[a, c] J_a
                 J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
@@ -222,4 +248,5 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                     positions=np.array([l.render_position for l in lights], np.float64).reshape(-1, 3),
                     is_point=np.array([l.fields_in_domain for l in lights], np.bool_),
                     irradiance=np.array([l.power for l in lights], np.float64).reshape(-1, 3),
-                    points=point_fields(sols, n, n_ch), phid=phid, flux=flux, seconds=seconds, key=key)
+                    points=point_fields(sols, n, n_ch), phid=phid, flux=flux, seconds=seconds, key=key,
+                    lobe_cap=lobe_cap)

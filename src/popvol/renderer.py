@@ -70,7 +70,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
               np.ascontiguousarray(solution.irradiance, np.float64),
               np.ascontiguousarray(solution.positions, np.float64))
-    grid = (solution.phi, solution.phia, solution.direct, solution.phid, solution.flux)
+    grid = (solution.phi, solution.phia, solution.direct, solution.phid, solution.flux,
+            np.ascontiguousarray(solution.lobe_cap, np.float64))
     pts = solution.points
     spherical = (pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full)
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),

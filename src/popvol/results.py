@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .kernels.render import MAX_DIFFUSE_ANISOTROPY
+
 #: Budget fields, in the order the kernels' tallies use for the first three.
 BUDGET_FIELDS = ("injected", "reflected", "transmitted", "side", "diffusion_leak", "absorbed", "in_flight")
 
@@ -58,6 +60,8 @@ class WalkResult:
     part of phi that is unscattered light (None for lights without one). handed: float32
     (2, domain shape), power and first moment handed over to the diffusion stage [W] (None
     without it). diffusion: the diffusion.DiffusionResult once the pipeline has solved it.
+    flux: float32 (3, domain shape), the fluence's first moment vector in the domain's frame
+    (the six-ordinate walk only; phia is then its component along the axis d).
     """
 
     phi: np.ndarray
@@ -73,6 +77,7 @@ class WalkResult:
     handed: np.ndarray | None = None
     diffusion: object = None
     seconds_diffusion: float = 0.0
+    flux: np.ndarray | None = None
 
 
 @dataclass
@@ -149,7 +154,8 @@ class Solution:
     light's direction, and its unscattered part. Zero for lights whose fields stay in their
     own domain (``points``; is_point). phid: float32 (n_lights, n_channels, nx, ny, nz), the
     diffuse light's fluence, and flux: float32 (n_lights, n_channels, 3, nx, ny, nz), its
-    world-space flux vector J (arrays with n_lights = 0 without the diffusion stage).
+    world-space flux vector J (arrays with n_lights = 0 without the diffusion stage or the
+    six-ordinate walk, whose scattered light they hold: docs/METHOD.md, "Six ordinates").
     All fields are 0 at voxels the renderer never reads (pipeline.voxels_seen).
     """
 
@@ -167,6 +173,12 @@ class Solution:
     flux: np.ndarray = field(default_factory=lambda: _empty(0, 1, 3, 1, 1, 1))
     seconds: dict = field(default_factory=dict)
     key: tuple = ()            # what it was solved for (pipeline.solve's reuse)
+    lobe_cap: np.ndarray | None = None   # float64 (n_lights,): the largest anisotropy of each
+    #                          light's phid lobe (None: MAX_DIFFUSE_ANISOTROPY for every light)
+
+    def __post_init__(self):
+        if self.lobe_cap is None:
+            self.lobe_cap = np.full(len(self.is_point), MAX_DIFFUSE_ANISOTROPY)
 
     def relit(self, lights) -> "Solution":
         """The same fields under ``lights`` of other powers (fields are per unit power)."""

@@ -7,8 +7,10 @@ decayed (supplement Eq. 12 or its Poisson form), and adds the visit to the fluen
 a. Gauss-Seidel sweeps along the principal ordinate (kernels/propagation.py for a rectilinear
 domain, kernels/spherical.py for a point light's) or a Jacobi wavefront repeat this until the
 power still in flight is below the tolerance; the experimental binned wavefront
-(kernels/binned.py) keeps each cell's light in fixed anisotropy bins instead of one merged lobe. With the diffusion stage, packets whose lobe has
-spread leave the walk (docs/METHOD.md, "Hand-over").
+(kernels/binned.py) keeps each cell's light in fixed anisotropy bins instead of one merged lobe,
+and the experimental six-ordinate wavefront (kernels/ordinates.py) one lobe per lattice
+direction, so that light sent sideways keeps going sideways. With the diffusion stage, packets
+whose lobe has spread leave the walk (docs/METHOD.md, "Hand-over").
 """
 from __future__ import annotations
 
@@ -21,6 +23,7 @@ import numpy as np
 from . import hg
 from .domains import check_memory
 from .kernels import binned as KB
+from .kernels import ordinates as KO
 from .kernels import propagation as K
 from .results import Budget, WalkResult
 
@@ -45,6 +48,20 @@ def split_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
 def split_table32(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
     """:func:`split_table` in float32, what the kernels read (see kernels.propagation.split)."""
     return split_table(n).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=4)
+def ordinate_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
+    """float64 (n, 7): for a lobe HG_a at a = linspace(-1, 1, n), the columns of
+    kernels.ordinates (PF .. MJ): front, side (each) and back shares, their conditional mean
+    cosines about the lobe's axis (supplement Eq. 2, 4, 7) and the side slice's mean cosine
+    about its own axis (:func:`popvol.hg.side_wedge_mean_cosine`)."""
+    a = np.linspace(-1.0, 1.0, n)
+    table = np.zeros((n, 7))
+    table[:, 0], table[:, 1], table[:, 2] = hg.split_fractions(a)
+    table[:, 3], table[:, 4], table[:, 5] = hg.conditional_mean_cosines(a)
+    table[:, 6] = hg.side_wedge_mean_cosine(a)
+    return table
 
 
 def anisotropy_bins(n: int = ANISOTROPY_BINS) -> np.ndarray:
@@ -108,7 +125,7 @@ def direct_fluence(sigma_t: np.ndarray, h: float) -> np.ndarray:
 
 
 def default_max_iterations(shape, solver: str) -> int:
-    if solver in ("jacobi", "binned"):
+    if solver in ("jacobi", "binned", "ordinates"):
         return 40 * int(sum(shape))
     return 400
 
@@ -200,6 +217,38 @@ def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tall
     return it, in_flight, absorbed
 
 
+def walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
+                    ) -> tuple[int, float, float]:
+    """The six-ordinate wavefront (kernels/ordinates.py) of :func:`walk_box`: the injected light
+    enters ordinate +d; returns (iterations, power in flight, power the injection's half step
+    absorbed). Accumulates into phi, flux (float32 (3,) + shape, the first moment in the
+    domain's frame) and tally."""
+    shape = Th.shape
+    check_memory(4 * 6 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates')",
+                 f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment, twice)")
+    table = ordinate_table()
+    W = np.zeros((6,) + shape, np.float32)
+    Wa = np.zeros_like(W)
+    W_next, Wa_next = np.zeros_like(W), np.zeros_like(W)
+    # the injected light crosses half a cell to the first centres (a0 decayed by Dh[0])
+    W[0, 0] = injection * Th[0]
+    Wa[0, 0] = W[0, 0] * np.float32(a0) * Dh[0]
+    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+    injected = float(np.sum(injection, dtype=np.float64))
+    in_flight = float(np.sum(W, dtype=np.float64))
+    it = 0
+    while in_flight > target and it < cap:
+        W_next.fill(0.0)
+        Wa_next.fill(0.0)
+        KO.ordinates_step(W, Wa, Th, Dh, table, inv_area, phi, flux, W_next, Wa_next, tally)
+        W, W_next, Wa, Wa_next = W_next, W, Wa_next, Wa
+        in_flight = float(np.sum(W, dtype=np.float64))
+        it += 1
+        if progress is not None and it % 16 == 0:
+            progress(it, in_flight / max(injected, 1e-300))
+    return it, in_flight, absorbed
+
+
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
              max_iterations: int = 0, periodic: bool = False, progress=None,
@@ -213,9 +262,11 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             The light travels half a cell to the first centre, so it is attenuated by Th[0].
         a0: anisotropy of the injected lobe (1 = collimated).
         h: cell size; fluence accumulates W / h^2 per visit.
-        rule: "moment" or "paper"; solver: "sweep", "jacobi" or "binned" (the Jacobi wavefront
+        rule: "moment" or "paper"; solver: "sweep", "jacobi", "binned" (the Jacobi wavefront
             with each cell's light in fixed anisotropy bins, linear in the light:
-            :func:`walk_binned`).
+            :func:`walk_binned`) or "ordinates" (the Jacobi wavefront with one lobe per
+            lattice direction: :func:`walk_ordinates`; rule "moment" only, no hand-over; the
+            result's ``flux`` holds the fluence's first moment vector).
         tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
             (0 = automatic). With ``handover`` and the sweep or binned solver, what is then
             still pending in the diffusion region is handed over (:func:`hand_over_pending`).
@@ -259,6 +310,13 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             it += 1
             if progress is not None and it % 16 == 0:
                 progress(it, in_flight / budget.injected)
+    elif solver == "ordinates":
+        if handover is not None or periodic or not moment:
+            raise ValueError("the six-ordinate walk has no hand-over, periodic faces or 'paper' rule")
+        flux = np.zeros((3,) + shape, np.float32)
+        it, in_flight, budget.absorbed = walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally,
+                                                        target, cap, progress)
+        phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,
                                                      tally, eps, diffusive, Q, target, cap, progress)
@@ -288,4 +346,5 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
     budget.in_flight = in_flight
     residual = in_flight / max(budget.injected, 1e-300)
     return WalkResult(phi, phia, budget, it, it * int(np.prod(shape)), residual, in_flight <= target,
-                      seconds, solver, handed=Q if handover is not None else None)
+                      seconds, solver, handed=Q if handover is not None else None,
+                      flux=flux if solver == "ordinates" else None)

@@ -38,7 +38,7 @@ Two shortcuts, neither changing which samples are taken:
 The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` builds them):
   medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block)
   lights     (is_point, direction, power, position)
-  grid       (phi, phia, direct, phid, flux)                the fields on the medium's grid
+  grid       (phi, phia, direct, phid, flux, lobe_cap)      the fields on the medium's grid
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
   view       (source, near)                                 the combined source, if any
   camera     (origin, basis, tan_half, width, height)
@@ -62,7 +62,7 @@ G_MAX = 0.9999  # |g A| at most this in f_hg
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
 # names there, Numba took and dropped a reference to its arrays (atomic counts) at every sample.
 IS_POINT, DIRECTION, POWER, POSITION = 0, 1, 2, 3               # lights
-PHI, PHIA, DIRECT, PHID, FLUX = 0, 1, 2, 3, 4                   # grid
+PHI, PHIA, DIRECT, PHID, FLUX, LOBE_CAP = 0, 1, 2, 3, 4, 5      # grid
 FIELDS, OFFSET, SHAPE, PARAMS, FRAME, FULL = 0, 1, 2, 3, 4, 5   # spherical
 
 
@@ -247,12 +247,14 @@ def walk_lobes(p, pa, pdir, mu, g):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def diffuse_lobe(phid, flux, corners, d, g):
+def diffuse_lobe(phid, flux, corners, d, g, cap):
     """The diffusion stage's light scattered along the camera ray d, per unit power:
-    phi_d f_hg(-d . J/|J|; g A_d), A_d = min(|J| / phi_d, MAX_DIFFUSE_ANISOTROPY), a lobe about
+    phi_d f_hg(-d . J/|J|; g A_d), A_d = min(|J| / phi_d, cap), a lobe about
     its own flux J convolved with the phase (supplement Eq. 3; docs/METHOD.md Eq. 24);
     phi_d / 4 pi where J = 0. phid (nx, ny, nz) and flux (3, nx, ny, nz) of one light and
-    channel, on the medium's grid at the stencil ``corners``."""
+    channel, on the medium's grid at the stencil ``corners``. ``cap``: MAX_DIFFUSE_ANISOTROPY for
+    the diffusion stage's light; 1 for the six-ordinate walk's scattered light, which the
+    pipeline stores in the same fields (docs/METHOD.md, "Six ordinates")."""
     pd = interpolate(phid, corners)
     if pd <= 0.0:
         return 0.0
@@ -262,9 +264,9 @@ def diffuse_lobe(phid, flux, corners, d, g):
     jn = math.sqrt(jx * jx + jy * jy + jz * jz)
     if jn <= 0.0:
         return pd * INV_FOUR_PI
-    A = min(jn / pd, MAX_DIFFUSE_ANISOTROPY)
+    A = min(jn / pd, cap)
     mu = -(jx * d[0] + jy * d[1] + jz * d[2]) / jn
-    return pd * f_hg(mu, g * A)
+    return pd * f_hg(mu, _clamp_g(g * A))
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -294,7 +296,7 @@ def light_channel(grid, spherical, l, c, corners, geometry, d, g, walk, diffuse)
             p, pa, pdir = grid_fields(grid, l, c, corners)
         val = walk_lobes(p, pa, pdir, mu, g) * inv_r2
     if diffuse and grid[PHID].shape[0] > 0:
-        val += diffuse_lobe(grid[PHID][l, c], grid[FLUX][l, c], corners, d, g)
+        val += diffuse_lobe(grid[PHID][l, c], grid[FLUX][l, c], corners, d, g, grid[LOBE_CAP][l])
     return val
 
 
@@ -482,7 +484,8 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     grid: phi, phia, direct float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit power
         (direct: the unscattered part of phi; all 0 for point lights); phid, flux: the diffuse
         lobe's fluence (n_lights, n_channels, ...) and world flux vector (n_lights, n_channels,
-        3, ...), or arrays with n_lights = 0 when there is no diffusion stage.
+        3, ...), or arrays with n_lights = 0 when there is no diffusion stage; lobe_cap float64
+        (n_lights,), the largest anisotropy of each light's diffuse lobe (diffuse_lobe).
     spherical: the point lights' fields (r^2 phi, r^2 phia, r^2 phi_dir) in their spherical
         domains: fields float32 (3, total), offset int64 (n_lights, n_channels), shape int64
         (n_lights, 3), params float64 (n_lights, 6), frame float64 (n_lights, 3, 3), full bool
@@ -499,7 +502,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     """
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     is_point, direction, power, position = lights
-    phi, phia, direct, phid, flux = grid
+    phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
     source, near = view
     o, basis, tan_half, width, height = camera
@@ -510,7 +513,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         # their arrays (atomic counts) at every sample, about 1.2x slower.
         medium_ = (density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block)
         lights_ = (is_point, direction, power, position)
-        grid_ = (phi, phia, direct, phid, flux)
+        grid_ = (phi, phia, direct, phid, flux, lobe_cap)
         spherical_ = (fields, offset, shape, params, frame, full)
         view_ = (source, near)
         camera_ = (o, basis, tan_half, width, height)

@@ -28,13 +28,13 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
     voxel's own g is the phase's anisotropy."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     is_point, direction, power, position = lights
-    phi, phia, direct, phid, flux = grid
+    phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
     nx, ny, nz = needed.shape
     has_diffuse = phid.shape[0] > 0
     for i in nb.prange(nx):
         lights_ = (is_point, direction, power, position)
-        grid_ = (phi, phia, direct, phid, flux)
+        grid_ = (phi, phia, direct, phid, flux, lobe_cap)
         spherical_ = (fields, offset, shape, params, frame, full)
         for j in range(ny):
             for k in range(nz):

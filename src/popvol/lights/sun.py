@@ -110,7 +110,7 @@ class SunDomain(DirectionalDomain):
         sigma_t, sigma_s, g = optics
         Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
         handover = None
-        if method.isotropic == "diffusion":
+        if method.isotropic == "diffusion" and method.solver != "ordinates":   # six ordinates walk it all
             handover = (method.handover_scale, handover_factor(sigma_t, sigma_s, g, self.h))
         injection = np.full(self.shape[1:], self.h * self.h, np.float32)
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,

@@ -1,0 +1,105 @@
+"""Numba kernel of the six-ordinate wavefront (docs/METHOD.md, "Six ordinates";
+experimental.solver = "ordinates").
+
+The sweeps, the Jacobi and the binned wavefronts hold one lobe per cell about the domain's axis
+d: a part sent sideways is merged back into a lobe about d at the next cell, so light that moves
+sideways forgets it and lateral transport is a random walk of step h, however thin the medium
+(docs/ACCURACY_NOTES.md, the narrow beam). Here a cell holds one pending packet per lattice
+direction e_o (o = 0..5: +d, -d, +u, -u, +v, -v; o ^ 1 is the opposite of o):
+
+  W, Wa  float32 (6, n_d, n_u, n_v): power [W] pending in ordinate o of each cell, at its
+         centre (after the receiver's half step), and power times the lobe's anisotropy
+         about e_o.
+
+A packet splits by the cone partition about its own e_o (supplement Eq. 2, 4, 7; the shares of
+docs/METHOD.md Eq. 6): its front part goes on along e_o in ordinate o with anisotropy m_front
+(Eq. 8), its back part into ordinate o ^ 1 of the cell behind with |m_back|, and the side part
+toward the neighbour along e_n into ordinate n with the mean cosine, about e_n, of the side
+wedge of HG_a about e_o (``table`` column MJ). The side part's drift along e_o (m_side) is not
+carried. Each part decays by Dh[s] Dh[c] and is attenuated by Th[s] Th[c] (Eq. 11). So light
+that leaves sideways keeps going sideways.
+
+Fields (per unit area, accumulated at every visit, Eq. 14): phi float32 (n_d, n_u, n_v) the
+fluence, F float32 (3, n_d, n_u, n_v) its first moment (the sum over ordinates of W a e_o) in
+the domain's frame. Tallies (float64 (4,)): reflected, transmitted, side escaped, absorbed.
+
+NumPy twin: tests/twins.py (ordinates_step).
+"""
+import numba as nb
+import numpy as np
+
+from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
+from .reduction import add_parts
+
+#: columns of the ordinates' table (walk.ordinate_table): front share, side share (each),
+#: back share, the three parts' conditional mean cosines about e_o, and the side wedge's mean
+#: cosine about its own axis
+PF, PS, PB, MF, MS, MB, MJ = range(7)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def ordinates_step(W, Wa, Th, Dh, table, inv_area, phi, F, W_out, Wa_out, tally):
+    """Send every pending packet one cell (module docstring) into ``W_out``, ``Wa_out`` (added
+    to; the caller zeroes them), accumulating (phi, F) and the tallies. Slices k = r, r + 3,
+    ... are sent in parallel for r = 0, 1, 2, so two threads never write the same slice.
+    Returns the power now in flight."""
+    n0, n1, n2 = Th.shape
+    nt = table.shape[0]
+    part = np.zeros((4, n0))            # the tallies per sending slice (kernels/reduction.py)
+    for r in range(3):
+        for kk in nb.prange((n0 - r + 2) // 3):
+            k = r + 3 * np.int64(kk)
+            for i in range(n1):
+                for j in range(n2):
+                    th = Th[k, i, j]
+                    dh = Dh[k, i, j]
+                    for o in range(6):
+                        w = W[o, k, i, j]
+                        if w <= 0.0:
+                            continue
+                        wa = Wa[o, k, i, j]
+                        sign = 1.0 - 2.0 * (o % 2)
+                        phi[k, i, j] += w * inv_area
+                        F[o // 2, k, i, j] += sign * wa * inv_area
+                        x = (wa / w + 1.0) * 0.5 * (nt - 1)
+                        x = min(max(x, 0.0), nt - 1.0)
+                        t = min(int(x), nt - 2)
+                        lam = x - t
+                        pf = table[t, PF] + lam * (table[t + 1, PF] - table[t, PF])
+                        ps = table[t, PS] + lam * (table[t + 1, PS] - table[t, PS])
+                        pb = max(1.0 - pf - 4.0 * ps, 0.0)
+                        mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
+                        mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
+                        mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
+                        sent = w * th                    # what the sender's half step leaves
+                        part[ABSORBED, k] += w - sent
+                        for n in range(6):
+                            if n == o:
+                                e, q, a = sent * pf, o, mf
+                            elif n == (o ^ 1):
+                                e, q, a = sent * pb, n, -mb
+                            else:
+                                e, q, a = sent * ps, n, mj
+                            if e <= 0.0:
+                                continue
+                            step = 1 - 2 * (n % 2)
+                            k2, i2, j2 = k, i, j
+                            if n < 2:
+                                k2 += step
+                            elif n < 4:
+                                i2 += step
+                            else:
+                                j2 += step
+                            if k2 < 0:
+                                part[REFLECTED, k] += e
+                            elif k2 >= n0:
+                                part[TRANSMITTED, k] += e
+                            elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
+                                part[SIDE_ESCAPED, k] += e
+                            else:
+                                th2 = Th[k2, i2, j2]
+                                part[ABSORBED, k] += e * (1.0 - th2)
+                                e *= th2
+                                W_out[q, k2, i2, j2] += e
+                                Wa_out[q, k2, i2, j2] += e * a * dh * Dh[k2, i2, j2]
+    add_parts(part, tally)

@@ -1,0 +1,195 @@
+"""The six-ordinate wavefront (experimental.solver = "ordinates", kernels/ordinates.py): the side
+slice's mean cosine against brute-force quadrature, the kernel against its NumPy twin, energy
+balance and Beer-Lambert, and the scene-level rules (it walks all the light; its scattered
+light is rendered as one lobe about its own first moment). Its transport against a 3-D Monte
+Carlo walk is in tests/test_beam.py."""
+import numpy as np
+import pytest
+
+import popvol
+import twins as ref
+from popvol import hg
+from popvol.errors import PopvolError
+from popvol.kernels import ordinates as KO
+from popvol.walk import direct_fluence, medium_factors, ordinate_table, walk_box
+
+
+def uniform_factors(shape, sigma_t, albedo, g, h):
+    st = np.full(shape, sigma_t, np.float32)
+    return medium_factors(st, st * albedo, np.full(shape, g, np.float32), h, "poisson")
+
+
+# -- the side slice's mean cosine about its own axis ------------------------------------------
+
+def test_side_wedge_mean_cosine_of_an_isotropic_lobe_is_exact():
+    """Uniform over theta in [pi/4, 3 pi/4], |phi| <= pi/4: the mean of sin(theta) cos(phi) is
+    (pi/4 + 1/2) sqrt(2) / (sqrt(2) pi / 2) = (1 + pi/2) / pi."""
+    assert hg.side_wedge_mean_cosine(0.0) == pytest.approx((1 + np.pi / 2) / np.pi, rel=1e-12)
+
+
+@pytest.mark.parametrize("a", [-0.95, -0.5, 0.3, 0.8, 0.95, 0.999])
+def test_side_wedge_mean_cosine_matches_brute_force_quadrature(a):
+    """Against a midpoint rule over (theta, phi) on the wedge itself, with the direction's
+    cosine to the wedge's axis taken from Cartesian coordinates (no 1-D reduction)."""
+    n = 2000
+    theta = np.pi / 4 + (np.arange(n) + 0.5) * (np.pi / 2) / n
+    phi = -np.pi / 4 + (np.arange(n // 4) + 0.5) * (np.pi / 2) / (n // 4)
+    T, P = np.meshgrid(theta, phi, indexing="ij")
+    axis_cos = np.sin(T) * np.cos(P)                  # e_n = x, the lobe's axis z
+    w = hg.f_hg(np.cos(T), a) * np.sin(T)
+    assert hg.side_wedge_mean_cosine(a) == pytest.approx((w * axis_cos).sum() / w.sum(), rel=1e-4)
+
+
+def test_ordinate_table_shares_sum_to_one():
+    t = ordinate_table()
+    np.testing.assert_allclose(t[:, 0] + 4 * t[:, 1] + t[:, 2], 1.0, atol=1e-12)
+    assert np.all((t[:, 6] > 0.78) & (t[:, 6] < 0.82))
+
+
+# -- the kernel against its NumPy twin ---------------------------------------------------------
+
+def test_ordinates_kernel_equals_numpy_twin(rng):
+    shape = (6, 5, 4)
+    W = (rng.random((6,) + shape) * (rng.random((6,) + shape) > 0.3)).astype(np.float32)
+    Wa = (W * rng.uniform(-1, 1, W.shape)).astype(np.float32)
+    Th = rng.uniform(0.7, 1.0, shape).astype(np.float32)
+    Dh = rng.uniform(0.5, 1.0, shape).astype(np.float32)
+    phi, F = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32)
+    W2, Wa2 = np.zeros_like(W), np.zeros_like(W)
+    tally = np.zeros(4)
+    KO.ordinates_step(W, Wa, Th, Dh, ordinate_table(), np.float32(3.0), phi, F, W2, Wa2, tally)
+
+    phi_r, F_r, tally_r = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
+    W_r, Wa_r = ref.ordinates_step(W, Wa, Th, Dh, 3.0, phi_r, F_r, tally_r)
+    np.testing.assert_allclose(W2, W_r, rtol=2e-5, atol=1e-6)
+    np.testing.assert_allclose(Wa2, Wa_r, rtol=2e-4, atol=2e-5)
+    np.testing.assert_allclose(phi, phi_r, rtol=1e-6)
+    np.testing.assert_allclose(F, F_r, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(tally, tally_r, rtol=2e-5, atol=1e-6)
+    # the step keeps energy: what went in = what arrived + escaped + absorbed
+    assert W.sum(dtype=np.float64) == pytest.approx(W_r.sum() + tally_r.sum(), rel=1e-9)
+    # side parts arrive in the ordinate of their own direction: none are left on the d axis
+    # from a packet that only had side neighbours to send to (checked by the twin), and
+    # anisotropies stay in [-1, 1]
+    assert np.all(np.abs(Wa2) <= W2 * (1 + 1e-5) + 1e-7)
+
+
+# -- energy and Beer-Lambert -------------------------------------------------------------------
+
+@pytest.mark.parametrize("a0", [1.0, 0.6, 0.0])
+def test_vacuum_all_injected_energy_leaves(a0):
+    shape, h = (12, 7, 9), 0.1
+    Th, Dh = uniform_factors(shape, 0.0, 1.0, 0.5, h)
+    inj = np.full(shape[1:], h * h, np.float32)
+    r = walk_box(Th, Dh, inj, a0, h, solver="ordinates", tolerance=1e-7)
+    b = r.budget
+    assert b.absorbed == 0.0
+    assert b.escaped == pytest.approx(b.injected, rel=1e-5)
+    if a0 == 1.0:   # a collimated beam in vacuum: all of it straight through, phi = E = 1
+        assert b.transmitted == pytest.approx(b.injected, rel=1e-6)
+        np.testing.assert_allclose(r.phi, 1.0, rtol=1e-6)
+        np.testing.assert_allclose(r.flux[0], 1.0, rtol=1e-6)
+        assert np.abs(r.flux[1:]).max() == 0.0
+
+
+def test_energy_balance_in_a_heterogeneous_medium(rng):
+    """injected = reflected + transmitted + side + absorbed + in flight (Eq. 16), to rounding."""
+    shape, h = (10, 8, 9), 0.05
+    density = rng.random(shape).astype(np.float32) * 40
+    Th, Dh = medium_factors(density, 0.95 * density, np.full(shape, 0.7, np.float32), h, "poisson")
+    inj = np.full(shape[1:], h * h, np.float32)
+    r = walk_box(Th, Dh, inj, 1.0, h, solver="ordinates", tolerance=1e-6)
+    b = r.budget
+    assert b.balance_error < 1e-5 * b.injected
+    assert b.absorbed > 0 and b.reflected > 0 and b.side > 0 and b.transmitted > 0
+    assert r.converged and np.all(r.phi >= 0)
+    # the first moment never exceeds the fluence: |F| <= phi
+    assert np.all(np.linalg.norm(r.flux, axis=0) <= r.phi * (1 + 1e-5) + 1e-9)
+
+
+def test_pure_absorber_follows_beer_lambert():
+    """sigma_s = 0: the collimated beam stays in ordinate +d (the front share of a = 1 is 1),
+    so phi at the cell centres is exp(-sigma_a depth) and the transmission exp(-tau)."""
+    shape, h, sigma = (16, 3, 3), 0.1, 2.0
+    Th, Dh = uniform_factors(shape, sigma, 0.0, 0.5, h)
+    inj = np.full(shape[1:], h * h, np.float32)
+    r = walk_box(Th, Dh, inj, 1.0, h, solver="ordinates", tolerance=1e-9)
+    st = np.full(shape, sigma, np.float32)
+    np.testing.assert_allclose(r.phi, direct_fluence(st, h), rtol=1e-5)
+    assert r.budget.transmitted / r.budget.injected == pytest.approx(np.exp(-sigma * h * shape[0]), rel=1e-5)
+    assert r.budget.side == 0.0 and r.budget.reflected == 0.0
+
+
+def test_ordinates_walk_refuses_a_domain_it_cannot_hold(monkeypatch):
+    from popvol import domains
+    monkeypatch.setattr(domains, "available_memory", lambda: 10_000)
+    Th, Dh = uniform_factors((8, 8, 8), 1.0, 0.9, 0.5, 0.1)
+    with pytest.raises(PopvolError, match=r"method.resolution .*6 ordinates of a 8x8x8 domain"):
+        walk_box(Th, Dh, np.full((8, 8), 0.01, np.float32), 1.0, 0.1, solver="ordinates")
+
+
+# -- scenes ------------------------------------------------------------------------------------
+
+SUN = {"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": [5.0, 4.85, 4.5]}
+POINT = {"type": "point", "position": [0.3, 1.6, 0.4], "intensity": [2.0, 2.0, 2.0]}
+
+
+def procedural_scene(**experimental):
+    return popvol.scene_from_dict({
+        "medium": {"type": "procedural", "resolution": 20, "seed": 7, "scale": 40.0, "albedo": 0.99, "g": 0.85},
+        "lights": [SUN, POINT],
+        "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "fov": 40.0, "width": 48, "height": 32},
+        "method": {"resolution": 20}, "experimental": experimental})
+
+
+def test_ordinates_need_the_moment_rule():
+    with pytest.raises(PopvolError, match=r"solver = 'ordinates' needs experimental.rule = 'moment' \(got 'paper'\)"):
+        procedural_scene(solver="ordinates", rule="paper")
+
+
+@pytest.fixture(scope="module")
+def ordinates_solution():
+    scene = procedural_scene(solver="ordinates")
+    return scene, popvol.solve(scene)
+
+
+def test_suns_walk_all_their_light_and_point_lights_keep_the_diffusion_stage(ordinates_solution):
+    """A sun's six-ordinate walk hands nothing over and its budget closes without a diffusion
+    stage; the point light (always swept) keeps its hand-over and diffusion solve."""
+    scene, sol = ordinates_solution
+    sun, point = sol.domains
+    assert sun.result.solver == "ordinates" and sun.result.diffusion is None and sun.result.flux is not None
+    assert point.result.solver == "sweep" and point.result.diffusion is not None
+    b = sun.result.budget
+    assert b.balance_error < 1e-5 * b.injected
+    assert sol.lobe_cap[0] == 1.0 and sol.lobe_cap[1] == 0.5
+
+
+def test_scattered_light_is_one_lobe_about_its_moment(ordinates_solution):
+    """The sun's scattered light sits in phid / flux with the lobe cap 1; phi = phia = the
+    unscattered light; |flux| <= phid; the image is finite and lit."""
+    scene, sol = ordinates_solution
+    np.testing.assert_array_equal(sol.phi[0], sol.direct[0])
+    np.testing.assert_array_equal(sol.phia[0], sol.direct[0])
+    assert sol.phid[0].max() > 0
+    assert np.all(np.linalg.norm(sol.flux[0], axis=1) <= sol.phid[0] * (1 + 1e-4) + 1e-6)
+    lit = sol.phid[0] > 1e-3 * sol.phid[0].max()
+    A = np.linalg.norm(sol.flux[0], axis=1)[lit] / sol.phid[0][lit]
+    assert A.max() > 0.6                  # lobes sharper than the diffusion's cap of 1/2
+    image = popvol.render(scene, sol)
+    assert np.all(np.isfinite(image)) and image.max() > 0
+
+
+def test_render_kernel_matches_twin_with_uncapped_lobes(ordinates_solution):
+    """The render kernel's diffuse lobe reads each light's cap (1 for the sun here, 1/2 for the
+    point light's diffusion): against the NumPy twin's per-pixel march at a few pixels, lit
+    light by light and from the combined source."""
+    scene, sol = ordinates_solution
+    cam = scene.camera
+    for combined in (False, True):
+        image = popvol.render(scene, sol, jitter=False, combined=combined)
+        for px, py in ((cam.width // 2, cam.height // 2), (cam.width // 2 + 5, cam.height // 2 + 4),
+                       (cam.width // 2, cam.height // 3)):
+            expect = ref.render_pixel(scene, sol, px, py, combined=combined)
+            assert expect.min() > 0.05                  # the pixel sees the lit medium
+            np.testing.assert_allclose(image[py, px], expect, rtol=2e-3, atol=1e-6)
