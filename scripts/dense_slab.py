@@ -7,7 +7,9 @@ scattering, ``Solution.single_scattering()``) against tests/montecarlo.py's half
 plane-parallel medium of the slab's optical thickness (independent of popvol), per voxel
 optical depth and grid. Prints a Markdown table.
 
-    python scripts/dense_slab.py [--taus 0.25,1,10,100,1e4] [--resolutions 16,32]
+    python scripts/dense_slab.py [--taus 0.25,1,10,100,1e4] [--resolutions 16,32] [--solver sweep]
+
+``--solver``: experimental.solver (sweep, jacobi, binned or ordinates).
 """
 import argparse
 import sys
@@ -20,12 +22,14 @@ from montecarlo import half_space_mc        # noqa: E402
 from slab import ALBEDO, G, LIGHT, VIEW, centre_radiance, slab_depth, slab_scene      # noqa: E402
 
 import popvol     # noqa: E402
+from popvol.scene import apply_overrides     # noqa: E402
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--taus", default="0.25,1,10,100,1e4", help="optical depths of one voxel")
     ap.add_argument("--resolutions", default="16,32")
+    ap.add_argument("--solver", default="sweep", help="experimental.solver")
     args = ap.parse_args()
     taus = [float(t) for t in args.taus.split(",")]
     resolutions = [int(r) for r in args.resolutions.split(",")]
@@ -36,7 +40,7 @@ def main():
         mc = half_space_mc(LIGHT, VIEW, ALBEDO, G, depth=slab_depth(tau), n_photons=200_000)
         cells = []
         for res in resolutions:
-            scene = slab_scene(tau, res)
+            scene = apply_overrides(slab_scene(tau, res), solver=args.solver)
             sol = popvol.solve(scene)
             total = centre_radiance(popvol.render(scene, sol, jitter=False))
             single = centre_radiance(popvol.render(scene, sol.single_scattering(), jitter=False))

@@ -1,9 +1,13 @@
-"""The walk with and without the energy-weighted merge of lobes: the default sweeps against the
-binned wavefront (experimental.solver = "binned", kernels/binned.py: each cell's light kept in
-fixed anisotropy bins, so the walk is linear in the light), each with the diffusion stage and
-alone, against Mitsuba (run from the repository root, with ../shared beside the checkout):
+"""The walk's variants against Mitsuba (run from the repository root, with ../shared beside the
+checkout):
 
-    python scripts/binned_study.py [--resolution 64] [NAME ...]
+    python scripts/walk_study.py [--resolution 64] [--variants KEY,...] [NAME ...]
+
+Variants (KEY: solver, isotropic stage): "default" (sweeps + diffusion), "binned" (the binned
+wavefront + diffusion: experimental.solver = "binned", kernels/binned.py, each cell's light kept
+in fixed anisotropy bins, so the walk is linear in the light), "walk" and "binned-walk" (the
+same walks alone), "ordinates" (the six-ordinate wavefront, kernels/ordinates.py, which walks
+all of a sun's light; point lights keep the sweeps and the diffusion stage). Default: all five.
 
 NAME: "regression" (tests/fixtures/regression_cloud), a scene of scenes/accuracy/ (reference in
 build/accuracy/, made by scripts/accuracy_table.py) or of the gallery (examples/NAME.toml,
@@ -24,8 +28,11 @@ from popvol.reference import load_reference
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["regression", "wdas_angle_090", "wdas_side", "wdas_front", "wdas_silver", "field_sun", "dragon_sky",
          "demo_dusk"]
-VARIANTS = (("sweeps + diffusion (default)", "sweep", "diffusion"), ("binned + diffusion", "binned", "diffusion"),
-            ("sweeps, walk alone", "sweep", "walk"), ("binned, walk alone", "binned", "walk"))
+VARIANTS = {"default": ("sweeps + diffusion (default)", "sweep", "diffusion"),
+            "binned": ("binned + diffusion", "binned", "diffusion"),
+            "walk": ("sweeps, walk alone", "sweep", "walk"),
+            "binned-walk": ("binned, walk alone", "binned", "walk"),
+            "ordinates": ("six ordinates", "ordinates", "diffusion")}
 
 
 def case(name: str) -> tuple[Path, Path]:
@@ -39,8 +46,14 @@ def case(name: str) -> tuple[Path, Path]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", type=int, default=64)
+    ap.add_argument("--variants", default=",".join(VARIANTS),
+                    help=f"comma-separated, of {', '.join(VARIANTS)} (default: all)")
     ap.add_argument("names", nargs="*", default=NAMES)
     args = ap.parse_args()
+    keys = [k for k in args.variants.split(",") if k]
+    unknown = [k for k in keys if k not in VARIANTS]
+    if unknown:
+        ap.error(f"unknown variant(s) {', '.join(unknown)} (known: {', '.join(VARIANTS)})")
     print("| scene | variant | relMSE | brightness | dim / mid / bright | iterations | solve + render |")
     print("|---|---|---|---|---|---|---|")
     for name in args.names:
@@ -50,7 +63,7 @@ def main() -> None:
             continue
         ref = load_reference(ref_path)
         h, w = ref.image.shape[:2]
-        for label, solver, isotropic in VARIANTS:
+        for label, solver, isotropic in (VARIANTS[k] for k in keys):
             scene = popvol.load_scene(scene_path, width=w, height=h, resolution=args.resolution, solver=solver,
                                       isotropic=isotropic)
             t0 = time.perf_counter()
