@@ -1,7 +1,8 @@
 """Write docs/ACCURACY.md: the default method and the walk alone against Mitsuba 3 references on
 the accuracy suite, at 64, 128 and 256 cells, in the metric of ``popvol compare`` (with, for the
-notes, the Jacobi wavefront at 128 cells and the binned one at 64). Run from the repository root,
-with ../shared beside the checkout (about 25 minutes on 2 cores once the references exist):
+notes, the Jacobi wavefront at 128 cells, the binned one at 64 and the six-ordinate one at 64 and
+128). Run from the repository root, with ../shared beside the checkout (about 40 minutes on 2
+cores once the references exist):
 
     python scripts/accuracy_table.py [--spp 4096] [--variant llvm_ad_rgb]
 
@@ -67,10 +68,11 @@ GALLERY = {
 SPP_SCALE = {"smoke1": 0.125, "wdas_density_10": 0.125, "haze": 0.5}
 RESOLUTIONS = (64, 128, 256)
 #: (label, method overrides, resolutions): the default and the walk alone at every resolution;
-#: the Jacobi wavefront at 128 cells and the binned one at 64 (docs/METHOD.md, "The schedule",
-#: "The merge itself"), for the notes
+#: the Jacobi wavefront at 128 cells, the binned one at 64 and the six-ordinate one at 64 and 128
+#: (docs/METHOD.md, "The schedule", "The merge itself", "Six ordinates"), for the notes
 VARIANTS = (("default", {}, RESOLUTIONS), ("walk alone", {"isotropic": "walk"}, RESOLUTIONS),
-            ("jacobi", {"solver": "jacobi"}, (128,)), ("binned", {"solver": "binned"}, (64,)))
+            ("jacobi", {"solver": "jacobi"}, (128,)), ("binned", {"solver": "binned"}, (64,)),
+            ("six ordinates", {"solver": "ordinates"}, (64, 128)))
 GOAL = {"relmse": 0.03, "band": 0.05, "drift": 0.02}
 
 
@@ -150,7 +152,8 @@ def summary_row(key: str, s: dict) -> str:
     return (f"| {key} | {s['noise']:.3f} | " + " / ".join(f"{r['relmse']:.3f}" for r in d)
             + f" | x{b['dim']:.2f} / x{b['mid']:.2f} / x{b['bright']:.2f} | {100 * drift(d[1], d[2]):.1f} % | "
             f"{rows['walk alone', 128]['relmse']:.3f} | {rows['jacobi', 128]['relmse']:.3f} | "
-            f"{rows['binned', 64]['relmse']:.3f} | "
+            f"{rows['binned', 64]['relmse']:.3f} | {rows['six ordinates', 64]['relmse']:.3f} / "
+            f"{rows['six ordinates', 128]['relmse']:.3f} (x{rows['six ordinates', 128]['brightness_ratio']:.2f}) | "
             f"{'yes' if goal_met(d[1], d[2]) else 'no'} |")
 
 
@@ -195,15 +198,18 @@ def main():
             "`environment_resolution` = 64 at every row. Beside the default: the walk alone "
             "(`isotropic = \"walk\"`) at every resolution, the Jacobi wavefront (`solver = "
             "\"jacobi\"`) at 128 cells and the binned wavefront (`solver = \"binned\"`, docs/METHOD.md "
-            "\"The merge itself\") at 64 (point lights always sweep); the other `[experimental]` variants are measured in "
+            "\"The merge itself\") at 64, and the six-ordinate wavefront (`solver = \"ordinates\"`, "
+            "docs/METHOD.md \"Six ordinates\") at 64 and 128 (point lights always sweep, with the "
+            "diffusion stage but in the walk-alone rows); the other `[experimental]` variants are measured in "
             "[ACCURACY_NOTES.md](ACCURACY_NOTES.md) and docs/METHOD.md.", "",
             f"The goal (#11): relMSE <= {GOAL['relmse']}, every band within {100 * GOAL['band']:.0f} % of x1 "
             f"and no band moving by more than {100 * GOAL['drift']:.0f} % from 128 to 256 cells, on every "
             "scene.", "",
             "## Summary: the default method", "",
             "| scene | reference noise | relMSE at 64 / 128 / 256 cells | dim / mid / bright at 256 | "
-            "largest band move 128 -> 256 | walk alone, relMSE at 128 | Jacobi, at 128 | binned, at 64 | goal met |",
-            "|---|---|---|---|---|---|---|---|---|"]
+            "largest band move 128 -> 256 | walk alone, relMSE at 128 | Jacobi, at 128 | binned, at 64 | "
+            "six ordinates, at 64 / 128 (brightness at 128) | goal met |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     text = head + summary + [""] + body + [f"_Generated in {time.perf_counter() - t_all:.0f} s._"]
     out = ROOT / "docs" / "ACCURACY.md"
     tmp = out.with_suffix(".md.tmp")
