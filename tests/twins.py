@@ -271,9 +271,19 @@ def in_scattering_source(scene, solution):
     the voxel's own view direction (x - c) / |x - c| and g; 0 elsewhere."""
     from popvol.pipeline import voxels_seen
     med = scene.medium
-    idx = np.moveaxis(np.indices(med.shape), 0, -1)
-    d = med.origin + idx * med.voxel_size - np.asarray(scene.camera.origin, float)
+    d = _voxel_centres(med) - np.asarray(scene.camera.origin, float)
     d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-300)
+    return np.where(voxels_seen(med.density)[..., None], _grid_lit(scene, solution, d), 0.0)
+
+
+def _voxel_centres(med):
+    return med.origin + np.moveaxis(np.indices(med.shape), 0, -1) * med.voxel_size
+
+
+def _grid_lit(scene, solution, d):
+    """L_s / sigma_s (nx, ny, nz, 3) at the voxel centres along the rays d (nx, ny, nz, 3) of
+    the terms lit on the medium's grid (the suns' walk lobes, every diffuse lobe)."""
+    med = scene.medium
     g = med.g.astype(np.float64) if med.g_per_voxel else np.full(med.shape, float(med.g))
     n_ch = solution.phi.shape[1]
     out = np.zeros(med.shape + (3,))
@@ -287,6 +297,72 @@ def in_scattering_source(scene, solution):
                 val += diffuse_lobe(solution.phid[l, c], np.moveaxis(solution.flux[l, c], 0, -1), d, g,
                                     solution.lobe_cap[l])
             out += val[..., None] * _power(solution, l, c, n_ch)
+    return out
+
+
+def _bilinear_slice(buf, u, v):
+    """buf (nu, nv) at the continuous index (u, v): 0 outside [-1/2, n - 1/2], clamped to the
+    edge in the outer half cell (kernels/gather.py)."""
+    nu, nv = buf.shape
+    if not (-0.5 <= u <= nu - 0.5 and -0.5 <= v <= nv - 0.5):
+        return 0.0
+    u, v = min(max(u, 0.0), nu - 1.0), min(max(v, 0.0), nv - 1.0)
+    i0, j0 = min(int(u), max(nu - 2, 0)), min(int(v), max(nv - 2, 0))
+    i1, j1 = min(i0 + 1, nu - 1), min(j0 + 1, nv - 1)
+    fu, fv = u - i0, v - j0
+    return ((1 - fu) * ((1 - fv) * buf[i0, j0] + fv * buf[i0, j1])
+            + fu * ((1 - fv) * buf[i1, j0] + fv * buf[i1, j1]))
+
+
+def gathered_source(scene, solution, dirs, weights):
+    """Twin of kernels.gather.gathered_source for suns (the point lights' walk lobes are not
+    lit here), divided by its phase quadrature: float64 (nx, ny, nz, 3), the light reaching
+    each voxel from each direction w (radiance transported slice by slice across the axis where
+    |w| is largest, from the lobes' light toward w, sigma_t and emission linear along each
+    upstream segment, half a segment in the first slice), scattered toward the camera with
+    f_hg, at the voxels the renderer reads; 0 elsewhere."""
+    from popvol.pipeline import voxels_seen
+    med = scene.medium
+    rho = med.density.astype(np.float64)
+    alb = med.albedo.astype(np.float64) if med.albedo_per_voxel else np.ones(med.shape)
+    alb_rgb = np.ones(3) if med.albedo_per_voxel else np.asarray(med.albedo, np.float64) * np.ones(3)
+    g = med.g.astype(np.float64) if med.g_per_voxel else np.full(med.shape, float(med.g))
+    sig = rho[..., None] * np.asarray(med.scale, np.float64)          # (nx, ny, nz, 3)
+    centres = _voxel_centres(med)
+    to_eye = np.asarray(scene.camera.origin, float) - centres
+    to_eye /= np.maximum(np.linalg.norm(to_eye, axis=-1, keepdims=True), 1e-300)
+    out, norm = np.zeros(med.shape + (3,)), np.zeros(med.shape)
+    for w, wt in zip(dirs, weights):
+        J = np.where(rho[..., None] > 0, _grid_lit(scene, solution, np.broadcast_to(-w, med.shape + (3,))), 0.0)
+        q = sig * (alb[..., None] * alb_rgb) * J
+        a = int(np.argmax(np.abs(w)))
+        b, c = [k for k in range(3) if k != a]
+        ell = med.voxel_size[a] / abs(w[a])
+        ob, oc = -ell * w[b] / med.voxel_size[b], -ell * w[c] / med.voxel_size[c]
+        # the arrays with the sweep axis first and the other two in increasing order
+        q_s, sig_s = np.moveaxis(q, a, 0), np.moveaxis(sig, a, 0)
+        L = np.zeros(q_s.shape)
+        order = range(q_s.shape[0]) if w[a] > 0 else range(q_s.shape[0] - 1, -1, -1)
+        for step, s in enumerate(order):
+            prev = s - 1 if w[a] > 0 else s + 1
+            for p in range(q_s.shape[1]):
+                for r in range(q_s.shape[2]):
+                    for ch in range(3):
+                        sv, qv = sig_s[s, p, r, ch], q_s[s, p, r, ch]
+                        if step == 0:
+                            l_up, q_up, s_up, path = 0.0, qv, sv, 0.5 * ell
+                        else:
+                            l_up, q_up, s_up = (_bilinear_slice(f[prev, :, :, ch], p + ob, r + oc)
+                                                for f in (L, q_s, sig_s))
+                            path = ell
+                        sbar = 0.5 * (s_up + sv)
+                        weight = path if sbar * path < 1e-12 else -np.expm1(-sbar * path) / sbar
+                        L[s, p, r, ch] = l_up * np.exp(-sbar * path) + 0.5 * (q_up + qv) * weight
+        L = np.moveaxis(L, 0, a)
+        f = wt * hg.f_hg(np.clip(to_eye @ w, -1.0, 1.0), g)
+        norm += f
+        out += f[..., None] * L
+    out /= np.where(norm > 0, norm, 1.0)[..., None]
     return np.where(voxels_seen(med.density)[..., None], out, 0.0)
 
 

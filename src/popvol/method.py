@@ -122,6 +122,12 @@ KNOBS: tuple[Knob, ...] = (
          "six-ordinate walk carries all its light, with no hand-over (needs `rule = \"moment\"`; "
          "docs/METHOD.md, \"Six ordinates\"). Point lights always sweep.",
          experimental=True),
+    Knob("gather", 0, (0, 4096), "Directions of the gathered last scattering (0: off).",
+         "With N > 0 the renderer gathers the light reaching each voxel from N directions, "
+         "transported through the medium from the fields' in-scattered light, and scatters it "
+         "toward the camera with the phase function, instead of lighting the voxel from the fields' "
+         "lobes; only the single scattering is lit per sample (docs/METHOD.md, \"Gathered last "
+         "bounce\"). Costs about N times the combined source.", experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
          "(the paper's rule).", experimental=True),

@@ -6,6 +6,7 @@ import numba
 import numpy as np
 
 from .errors import PopvolError
+from .kernels.gather import gathered_source
 from .kernels.render import render_kernel
 from .kernels.source import in_scattering_source
 from .pipeline import solve, voxels_seen
@@ -70,12 +71,16 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
               np.ascontiguousarray(solution.irradiance, np.float64),
               np.ascontiguousarray(solution.positions, np.float64))
-    grid = (solution.phi, solution.phia, solution.direct, solution.phid, solution.flux,
-            np.ascontiguousarray(solution.lobe_cap, np.float64))
-    pts = solution.points
-    spherical = (pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full)
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
+    if m.gather > 0:
+        # the scattered light toward the camera gathered on the grid; the samples add the
+        # single scattering (docs/METHOD.md, "Gathered last bounce")
+        gathered = gather(medium, lights, field_bundles(solution), np.asarray(cam.origin, np.float64), seen,
+                          m.gather)
+        solution = solution.single_scattering()
+        combined = True
+    grid, spherical = field_bundles(solution)
     source = np.zeros((0, 0, 0, 3), np.float32)
     grid_lit = int((~solution.is_point).sum()) + (len(solution.is_point) if solution.phid.shape[0] > 0 else 0)
     if combined is None:
@@ -85,9 +90,41 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         source = np.zeros(med.density.shape + (3,), np.float32)
         in_scattering_source(medium, lights, grid, spherical, np.asarray(cam.origin, np.float64),
                              seen, source)
-    view = (source, float(NEAR_VOXELS * med.voxel_size.min()))
+    near = float(NEAR_VOXELS * med.voxel_size.min())
+    if m.gather > 0:
+        source = source + gathered if source.size else gathered
+        near = 0.0                        # every sample reads the gathered light from the grid
+    view = (source, near)
     march = (float(m.step * med.voxel_size.min()), int(m.spp), int(m.seed), bool(jitter))
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
+
+
+def field_bundles(solution: Solution) -> tuple[tuple, tuple]:
+    """The solution's fields as the kernels take them: (grid, spherical) (kernels/render.py)."""
+    grid = (solution.phi, solution.phia, solution.direct, solution.phid, solution.flux,
+            np.ascontiguousarray(solution.lobe_cap, np.float64))
+    pts = solution.points
+    return grid, (pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full)
+
+
+def gather_directions(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """n unit directions on a Fibonacci sphere (float64 (n, 3)) and equal weights 4 pi / n."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    azimuth = np.pi * (1.0 + np.sqrt(5.0)) * i
+    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+    return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], 1), np.full(n, 4.0 * np.pi / n)
+
+
+def gather(medium, lights, bundles, eye, seen, n_directions: int) -> np.ndarray:
+    """float32 (nx, ny, nz, 3): the scattered light gathered toward the camera at ``eye`` from
+    ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere."""
+    grid, spherical = bundles
+    dirs, weights = gather_directions(n_directions)
+    out = np.zeros(seen.shape + (3,), np.float32)
+    norm = np.zeros(seen.shape, np.float64)
+    gathered_source(medium, lights, grid, spherical, eye, seen, dirs, weights, out, norm)
+    return (out / np.where(norm > 0, norm, 1.0)[..., None]).astype(np.float32)
 
 
 def occupied_blocks(seen: np.ndarray, block: int) -> np.ndarray:
