@@ -12,11 +12,7 @@ from popvol import hg
 from popvol.errors import PopvolError
 from popvol.kernels import ordinates as KO
 from popvol.walk import direct_fluence, medium_factors, ordinate_table, walk_box
-
-
-def uniform_factors(shape, sigma_t, albedo, g, h):
-    st = np.full(shape, sigma_t, np.float32)
-    return medium_factors(st, st * albedo, np.full(shape, g, np.float32), h, "poisson")
+from test_propagation import uniform_factors
 
 
 # -- the side slice's mean cosine about its own axis ------------------------------------------
@@ -40,10 +36,13 @@ def test_side_wedge_mean_cosine_matches_brute_force_quadrature(a):
     assert hg.side_wedge_mean_cosine(a) == pytest.approx((w * axis_cos).sum() / w.sum(), rel=1e-4)
 
 
-def test_ordinate_table_shares_sum_to_one():
+def test_ordinate_table_side_wedge_column():
+    """The wedge is symmetric under a -> -a (HG_-a(mu) = HG_a(-mu), the wedge spans mu in
+    [-c, c]); the column stays between the limit at |a| = 1 (0.7887) and the isotropic value."""
     t = ordinate_table()
-    np.testing.assert_allclose(t[:, 0] + 4 * t[:, 1] + t[:, 2], 1.0, atol=1e-12)
-    assert np.all((t[:, 6] > 0.78) & (t[:, 6] < 0.82))
+    np.testing.assert_allclose(t[:, 6], t[::-1, 6], rtol=1e-9)
+    assert t[len(t) // 2, 6] == pytest.approx((1 + np.pi / 2) / np.pi, rel=1e-9)
+    assert np.all((t[:, 6] > 0.788) & (t[:, 6] < 0.8184))
 
 
 # -- the kernel against its NumPy twin ---------------------------------------------------------
@@ -68,9 +67,7 @@ def test_ordinates_kernel_equals_numpy_twin(rng):
     np.testing.assert_allclose(tally, tally_r, rtol=2e-5, atol=1e-6)
     # the step keeps energy: what went in = what arrived + escaped + absorbed
     assert W.sum(dtype=np.float64) == pytest.approx(W_r.sum() + tally_r.sum(), rel=1e-9)
-    # side parts arrive in the ordinate of their own direction: none are left on the d axis
-    # from a packet that only had side neighbours to send to (checked by the twin), and
-    # anisotropies stay in [-1, 1]
+    # every arriving packet's anisotropy stays in [-1, 1]
     assert np.all(np.abs(Wa2) <= W2 * (1 + 1e-5) + 1e-7)
 
 

@@ -35,6 +35,7 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
     one in-scattering source built for this view (kernels/source.py), else light by light
     (None: whichever costs less, by COMBINED_VOXELS_PER_SAMPLE; the images differ by relMSE
     <= 1e-4, docs/METHOD.md); ``skip``: jump over empty blocks of the medium (the image is bitwise the same).
+    With ``method.gather`` > 0 the combined source is always used (it holds the gathered light).
     """
     if solution is None:
         solution = solve(scene)

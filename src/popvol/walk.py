@@ -56,11 +56,9 @@ def ordinate_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
     kernels.ordinates (PF .. MJ): front, side (each) and back shares, their conditional mean
     cosines about the lobe's axis (supplement Eq. 2, 4, 7) and the side slice's mean cosine
     about its own axis (:func:`popvol.hg.side_wedge_mean_cosine`)."""
-    a = np.linspace(-1.0, 1.0, n)
     table = np.zeros((n, 7))
-    table[:, 0], table[:, 1], table[:, 2] = hg.split_fractions(a)
-    table[:, 3], table[:, 4], table[:, 5] = hg.conditional_mean_cosines(a)
-    table[:, 6] = hg.side_wedge_mean_cosine(a)
+    table[:, :6] = split_table(n)[:, :6]
+    table[:, 6] = hg.side_wedge_mean_cosine(np.linspace(-1.0, 1.0, n))
     return table
 
 
