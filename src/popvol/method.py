@@ -128,6 +128,12 @@ KNOBS: tuple[Knob, ...] = (
          "toward the camera with the phase function, instead of lighting the voxel from the fields' "
          "lobes; only the single scattering is lit per sample (docs/METHOD.md, \"Gathered last "
          "bounce\"). Costs about N times the combined source.", experimental=True),
+    Knob("gather_resolution", 64, (0, 4096), "Blocks along the longest side of the gather's grid.",
+         "With `gather` > 0 the light is gathered on blocks of f^3 voxels of the medium, the fewest "
+         "with at most this many blocks along the grid's longest side but none wider than half a "
+         "mean free path where the medium is dense, and read back by trilinear interpolation (the "
+         "sweeps cost about f^-3 as much); 0 = the medium's own voxels.",
+         experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
          "(the paper's rule).", experimental=True),

@@ -24,6 +24,12 @@ NEAR_VOXELS = 32.0
 #: one sample's per-light lighting per 8 voxels (measured: WDAS + sun, 640x360: 0.17 s combined
 #: against 0.21 s light by light; the viewer's 160x90 drafts of it are faster light by light)
 COMBINED_VOXELS_PER_SAMPLE = 8
+#: the gather's directions are swept in this many lanes that run in parallel (kernels/gather.py)
+GATHER_LANES = 4
+#: the gather's blocks are at most this many mean free paths wide where the medium is dense
+#: (its 90th percentile of sigma_t): the front-lit slab at 0.25-1 mean free paths per voxel
+#: moved by 2-10 % with blocks of 2^3 voxels (tests/test_gather.py)
+GATHER_BLOCK_MFP = 0.5
 
 
 def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
@@ -78,7 +84,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         # the scattered light toward the camera gathered on the grid; the samples add the
         # single scattering (docs/METHOD.md, "Gathered last bounce")
         gathered = gather(medium, lights, field_bundles(solution), np.asarray(cam.origin, np.float64), seen,
-                          m.gather)
+                          m.gather, gather_factor(med, m.gather_resolution))
         solution = solution.single_scattering()
         combined = True
     grid, spherical = field_bundles(solution)
@@ -117,15 +123,101 @@ def gather_directions(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], 1), np.full(n, 4.0 * np.pi / n)
 
 
-def gather(medium, lights, bundles, eye, seen, n_directions: int) -> np.ndarray:
+def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1) -> np.ndarray:
     """float32 (nx, ny, nz, 3): the scattered light gathered toward the camera at ``eye`` from
-    ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere."""
+    ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere.
+
+    With ``factor`` > 1 the light is transported on a grid of blocks of factor^3 voxels (the
+    medium and the fields averaged over each block's voxels) and read back at the voxels by
+    trilinear interpolation between the blocks' centres (clamped to the edge), so the sweeps
+    cost about factor^-3 as much."""
     grid, spherical = bundles
     dirs, weights = gather_directions(n_directions)
-    out = np.zeros(seen.shape + (3,), np.float32)
-    norm = np.zeros(seen.shape, np.float64)
-    gathered_source(medium, lights, grid, spherical, eye, seen, dirs, weights, out, norm)
-    return (out / np.where(norm > 0, norm, 1.0)[..., None]).astype(np.float32)
+    if factor > 1:
+        medium, grid, needed = coarse_bundles(medium, grid, seen, factor)
+    else:
+        needed = seen
+    lanes = min(GATHER_LANES, n_directions)
+    out = np.zeros((lanes,) + needed.shape + (3,), np.float32)
+    norm = np.zeros((lanes,) + needed.shape, np.float32)
+    gathered_source(medium, lights, grid, spherical, eye, needed, dirs, weights, out, norm)
+    norm = norm.sum(axis=0, dtype=np.float64)
+    light = (out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]).astype(np.float32)
+    if factor > 1:
+        light = upsample(light, factor, seen.shape)
+    light[~seen] = 0.0
+    return light
+
+
+def gather_factor(medium, resolution: int) -> int:
+    """The gather grid's blocks are factor^3 voxels of ``medium`` (a Medium): the fewest with at
+    most ``resolution`` blocks along the grid's longest side, but no block wider than
+    GATHER_BLOCK_MFP mean free paths where the medium is dense (sigma_t at the 90th percentile
+    of the non-empty voxels); 1 (the voxels themselves) for resolution 0."""
+    if not resolution:
+        return 1
+    factor = -(-max(medium.shape) // resolution)
+    rho = medium.density[medium.density > 0]
+    if rho.size:
+        mfp_per_voxel = float(np.percentile(rho, 90)) * float(np.max(medium.scale)) * float(medium.voxel_size.max())
+        factor = min(factor, int(GATHER_BLOCK_MFP / max(mfp_per_voxel, 1e-30)))
+    return max(1, factor)
+
+
+def block_mean(x: np.ndarray, factor: int) -> np.ndarray:
+    """float32: the mean of x (..., nx, ny, nz) over blocks of factor^3 voxels along its last
+    three axes (the blocks at the far edges over the voxels they hold)."""
+    out = np.asarray(x, np.float32)
+    for axis in range(out.ndim - 3, out.ndim):
+        n = out.shape[axis]
+        m = -(-n // factor)
+        if m * factor != n:
+            pad = [(0, 0)] * out.ndim
+            pad[axis] = (0, m * factor - n)
+            out = np.pad(out, pad)
+        out = out.reshape(out.shape[:axis] + (m, factor) + out.shape[axis + 1:]).sum(axis=axis + 1)
+        held = np.minimum(factor, n - factor * np.arange(m)).astype(np.float32)    # voxels per block
+        out /= held.reshape((m,) + (1,) * (out.ndim - axis - 1))
+    return out
+
+
+def coarse_bundles(medium, grid, seen, factor: int) -> tuple[tuple, tuple, np.ndarray]:
+    """The render kernel's medium and grid bundles on blocks of factor^3 voxels (block means;
+    constants stay constants; the origin is the first block's centre), and the blocks the
+    upsampling reads: those holding a seen voxel and their neighbours."""
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    phi, phia, direct, phid, flux, lobe_cap = grid
+    const = (lambda a: a if a.size == 1 else block_mean(a, factor))
+    coarse_medium = (block_mean(density, factor), scale, const(albedo), albedo_rgb, const(g_grid),
+                     origin + 0.5 * (factor - 1) * voxel, voxel * factor, lo, hi, blocks, block)
+    coarse_grid = tuple(block_mean(f, factor) if f.size > 1 else f for f in (phi, phia, direct, phid, flux)) + (lobe_cap,)
+    needed = block_mean(seen.astype(np.float32), factor) > 0
+    grown = needed.copy()
+    for axis in range(3):                 # and the blocks next to them (the trilinear stencil)
+        n = needed.shape[axis]
+        if n > 1:
+            lower = [slice(None)] * 3
+            upper = [slice(None)] * 3
+            lower[axis], upper[axis] = slice(0, n - 1), slice(1, n)
+            grown[tuple(lower)] |= needed[tuple(upper)]
+            grown[tuple(upper)] |= needed[tuple(lower)]
+        needed = grown.copy()
+    return coarse_medium, coarse_grid, needed
+
+
+def upsample(coarse: np.ndarray, factor: int, shape: tuple) -> np.ndarray:
+    """(nx, ny, nz, C) from the blocks' values ``coarse`` at their centres: trilinear at the
+    voxel centres, clamped to the edge (separable: one linear interpolation per axis)."""
+    out = coarse
+    for axis, n in enumerate(shape):
+        nc = out.shape[axis]
+        u = np.clip((np.arange(n) - 0.5 * (factor - 1)) / factor, 0.0, nc - 1.0)
+        i0 = np.minimum(u.astype(np.int64), max(nc - 2, 0))
+        i1 = np.minimum(i0 + 1, nc - 1)
+        w = (u - i0).astype(out.dtype).reshape((-1,) + (1,) * (out.ndim - axis - 1))
+        lower = np.take(out, i0, axis=axis)
+        out = lower + (np.take(out, i1, axis=axis) - lower) * w
+    return out
 
 
 def occupied_blocks(seen: np.ndarray, block: int) -> np.ndarray:

@@ -11,7 +11,8 @@ camera with the phase function:
 (the denominator makes the quadrature of the phase function exact), where L_in(x, w_i), the
 radiance reaching x travelling along w_i, is transported from the fields' in-scattered light
 L_s(x', w_i) (the lobes of kernels/render.py, single scattering included) by one sweep per
-direction over the medium's grid (short characteristics):
+direction over a grid (the medium's voxels, or blocks of them with the fields averaged over
+each block: renderer.gather) by short characteristics:
 slices are taken across the axis a along which |w_i| is largest, in the direction w_i travels,
 and each voxel takes the radiance from the point one slice upstream (bilinear in that slice, 0
 outside the grid) over the path l = voxel[a] / |w_i[a]| (half of it in the first slice, from the
@@ -25,7 +26,8 @@ channel:
 So the second scattering toward the camera is transported, not modelled: near a free surface
 little light arrives from outside, which one lobe per cell cannot say. What the renderer then
 adds per sample is the single scattering (Solution.single_scattering()). ``out`` holds it toward
-a pinhole at ``eye`` at the voxels where ``needed``.
+a pinhole at ``eye`` at the voxels where ``needed``. The directions are swept in a few lanes
+that run in parallel, each with its own sums, one parallel region per frame.
 
 NumPy twin: tests/twins.py (gathered_source).
 """
@@ -68,86 +70,88 @@ def _bilinear(buf, u, v, nu, nv, ch):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def gathered_source(medium, lights, grid, spherical, eye, needed, dirs, weights, out, norm):
-    """Add to ``out`` float32 (nx, ny, nz, 3) the gathered L_s / sigma_s toward the camera at
-    ``eye`` (module docstring) and to ``norm`` float64 (nx, ny, nz) the phase quadrature's sum,
-    at the voxels where ``needed``; the caller divides. dirs float64 (N, 3) unit directions of
-    travel, weights float64 (N,). medium, lights, grid, spherical: the render kernel's bundles."""
+    """Add to ``out`` float32 (lanes, nx, ny, nz, 3) the gathered L_s / sigma_s toward the
+    camera at ``eye`` (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
+    quadrature's sum, at the voxels where ``needed``; the caller sums the lanes and divides.
+    Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
+    directions one after another (so the sum does not depend on the number of threads).
+    dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium, lights, grid,
+    spherical: the render kernel's bundles, on one grid (the medium's or a coarser one)."""
+    lanes = out.shape[0]
+    for lane in nb.prange(lanes):
+        for i in range(lane, dirs.shape[0], lanes):
+            _sweep(medium, lights, grid, spherical, eye, needed, dirs[i], weights[i], out[lane], norm[lane])
+
+
+@nb.njit(fastmath=True, cache=True)
+def _sweep(medium, lights, grid, spherical, eye, needed, w, weight, out, norm):
+    """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
+    weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, 3) and the weight
+    times f_hg to ``norm`` (nx, ny, nz) where ``needed``."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
-    is_point, direction, power, position = lights
-    phi, phia, direct, phid, flux, lobe_cap = grid
-    fields, offset, shape, params, frame, full = spherical
     n = density.shape
-    for i in range(dirs.shape[0]):
-        w0, w1, w2 = dirs[i, 0], dirs[i, 1], dirs[i, 2]
-        a = 0
-        if abs(w1) > abs(w0) and abs(w1) >= abs(w2):
-            a = 1
-        elif abs(w2) > abs(w0) and abs(w2) > abs(w1):
-            a = 2
-        b = 1 if a == 0 else 0
-        c = 1 if a == 2 else 2
-        wa = (w0, w1, w2)[a]
-        ell = voxel[a] / abs(wa)
-        ob = -ell * (w0, w1, w2)[b] / voxel[b]          # the upstream point, in the slice before
-        oc = -ell * (w0, w1, w2)[c] / voxel[c]
-        na, nb_, nc_ = n[a], n[b], n[c]
-        # per slice and channel: L_in, the emission per unit length q and sigma_t, of the slice
-        # before (prev) and this one (cur)
-        prev = np.zeros((3, nb_, nc_, 3))
-        cur = np.zeros((3, nb_, nc_, 3))
-        for step in range(na):
-            s = step if wa > 0 else na - 1 - step
-            for pp in nb.prange(nb_):
-                p = np.int64(pp)
-                lights_ = (is_point, direction, power, position)
-                grid_ = (phi, phia, direct, phid, flux, lobe_cap)
-                spherical_ = (fields, offset, shape, params, frame, full)
-                for q in range(nc_):
-                    ix, iy, iz = _voxel(a, s, p, q)
-                    rho = density[ix, iy, iz]
-                    x = (origin[0] + ix * voxel[0], origin[1] + iy * voxel[1], origin[2] + iz * voxel[2])
-                    g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[ix, iy, iz]
-                    j = (0.0, 0.0, 0.0)
-                    if rho > 0.0:
-                        corners = (ix, ix, iy, iy, iz, iz, 0.0, 0.0, 0.0)
-                        d = (-w0, -w1, -w2)                 # the "camera ray" that sees light leaving along w
-                        j0 = j1 = j2 = 0.0
-                        for l in range(is_point.shape[0]):
-                            e0, e1, e2 = light_in_scattering(lights_, grid_, spherical_, l, corners, x, d, g,
-                                                             True, True)
-                            j0 += e0
-                            j1 += e1
-                            j2 += e2
-                        j = (j0, j1, j2)
-                    alb = 0.0
-                    if rho > 0.0:
-                        alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[ix, iy, iz]
-                    for ch in range(3):
-                        sig = scale[ch] * rho
-                        qv = sig * alb * albedo_rgb[ch] * j[ch]
-                        if step == 0:               # from the grid's face: half a slice of this voxel
-                            l_up, q_up, s_up, path = 0.0, qv, sig, 0.5 * ell
-                        else:
-                            l_up = _bilinear(prev[0], p + ob, q + oc, nb_, nc_, ch)
-                            q_up = _bilinear(prev[1], p + ob, q + oc, nb_, nc_, ch)
-                            s_up = _bilinear(prev[2], p + ob, q + oc, nb_, nc_, ch)
-                            path = ell
-                        sbar = 0.5 * (s_up + sig)
-                        tau = sbar * path
-                        t = math.exp(-tau)
-                        # (1 - T) / sigma: the segment's emission weight, -> path as sigma -> 0
-                        wgt = path * (1.0 - tau * (0.5 - tau / 6.0)) if tau < 1e-4 else (1.0 - t) / sbar
-                        cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
-                        cur[1, p, q, ch] = qv
-                        cur[2, p, q, ch] = sig
-                    if needed[ix, iy, iz]:
-                        ex = eye[0] - x[0]
-                        ey = eye[1] - x[1]
-                        ez = eye[2] - x[2]
-                        r = max(math.sqrt(ex * ex + ey * ey + ez * ez), 1e-300)
-                        f = weights[i] * f_hg((w0 * ex + w1 * ey + w2 * ez) / r, g)
-                        norm[ix, iy, iz] += f
-                        out[ix, iy, iz, 0] += f * cur[0, p, q, 0]
-                        out[ix, iy, iz, 1] += f * cur[0, p, q, 1]
-                        out[ix, iy, iz, 2] += f * cur[0, p, q, 2]
-            prev, cur = cur, prev
+    w0, w1, w2 = w[0], w[1], w[2]
+    a = 0
+    if abs(w1) > abs(w0) and abs(w1) >= abs(w2):
+        a = 1
+    elif abs(w2) > abs(w0) and abs(w2) > abs(w1):
+        a = 2
+    b = 1 if a == 0 else 0
+    c = 1 if a == 2 else 2
+    wa = (w0, w1, w2)[a]
+    ell = voxel[a] / abs(wa)
+    ob = -ell * (w0, w1, w2)[b] / voxel[b]          # the upstream point, in the slice before
+    oc = -ell * (w0, w1, w2)[c] / voxel[c]
+    na, nb_, nc_ = n[a], n[b], n[c]
+    # per slice and channel: L_in, the emission per unit length q and sigma_t, of the slice
+    # before (prev) and this one (cur)
+    prev = np.zeros((3, nb_, nc_, 3))
+    cur = np.zeros((3, nb_, nc_, 3))
+    d = (-w0, -w1, -w2)                 # the "camera ray" that sees light leaving along w
+    for step in range(na):
+        s = step if wa > 0 else na - 1 - step
+        for p in range(nb_):
+            for q in range(nc_):
+                ix, iy, iz = _voxel(a, s, p, q)
+                rho = density[ix, iy, iz]
+                x = (origin[0] + ix * voxel[0], origin[1] + iy * voxel[1], origin[2] + iz * voxel[2])
+                g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[ix, iy, iz]
+                j0 = j1 = j2 = 0.0
+                alb = 0.0
+                if rho > 0.0:
+                    corners = (ix, ix, iy, iy, iz, iz, 0.0, 0.0, 0.0)
+                    for l in range(lights[0].shape[0]):
+                        e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, True)
+                        j0 += e0
+                        j1 += e1
+                        j2 += e2
+                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[ix, iy, iz]
+                for ch in range(3):
+                    sig = scale[ch] * rho
+                    qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
+                    if step == 0:               # from the grid's face: half a slice of this voxel
+                        l_up, q_up, s_up, path = 0.0, qv, sig, 0.5 * ell
+                    else:
+                        l_up = _bilinear(prev[0], p + ob, q + oc, nb_, nc_, ch)
+                        q_up = _bilinear(prev[1], p + ob, q + oc, nb_, nc_, ch)
+                        s_up = _bilinear(prev[2], p + ob, q + oc, nb_, nc_, ch)
+                        path = ell
+                    sbar = 0.5 * (s_up + sig)
+                    tau = sbar * path
+                    t = math.exp(-tau)
+                    # (1 - T) / sigma: the segment's emission weight, -> path as sigma -> 0
+                    wgt = path * (1.0 - tau * (0.5 - tau / 6.0)) if tau < 1e-4 else (1.0 - t) / sbar
+                    cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
+                    cur[1, p, q, ch] = qv
+                    cur[2, p, q, ch] = sig
+                if needed[ix, iy, iz]:
+                    ex = eye[0] - x[0]
+                    ey = eye[1] - x[1]
+                    ez = eye[2] - x[2]
+                    r = max(math.sqrt(ex * ex + ey * ey + ez * ez), 1e-300)
+                    f = weight * f_hg((w0 * ex + w1 * ey + w2 * ez) / r, g)
+                    norm[ix, iy, iz] += f
+                    out[ix, iy, iz, 0] += f * cur[0, p, q, 0]
+                    out[ix, iy, iz, 1] += f * cur[0, p, q, 1]
+                    out[ix, iy, iz, 2] += f * cur[0, p, q, 2]
+        prev, cur = cur, prev
