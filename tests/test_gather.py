@@ -28,6 +28,42 @@ def test_gather_directions_cover_the_sphere():
     assert np.abs(dirs.mean(axis=0)).max() < 0.01                  # no preferred direction
 
 
+def test_capped_directions_integrate_a_peaked_phase_function():
+    """The phase function toward view directions inside the cap integrates to 1 (HG's
+    normalisation) and its mean cosine to g: with half the directions in a 50-degree cap about
+    the view axis, 64 directions miss by less than a third of what 64 on the whole sphere
+    miss (measured: mean error 0.095 against 0.31, g = 0.877), and 256 by < 5 %."""
+    from popvol import hg
+    axis = np.array([0.3, -0.2, 0.93]) / np.linalg.norm([0.3, -0.2, 0.93])
+    rng = np.random.default_rng(0)
+    views = axis + 0.25 * rng.normal(size=(400, 3))
+    views /= np.linalg.norm(views, axis=1, keepdims=True)
+    views = views[views @ axis > np.cos(np.radians(35.0))]
+    g = 0.877
+
+    def errors(n, cap):
+        dirs, weights = renderer.gather_directions(n, axis, cap)
+        assert weights.sum() == pytest.approx(4 * np.pi)
+        np.testing.assert_allclose(np.linalg.norm(dirs, axis=1), 1.0, rtol=1e-12)
+        f = hg.f_hg(views @ dirs.T, g) * weights                       # (views, directions)
+        return np.abs(f.sum(1) - 1.0), np.abs((f * (views @ dirs.T)).sum(1) / g - 1.0)
+
+    capped, uniform = errors(64, np.radians(50.0)), errors(64, 0.0)
+    assert capped[0].mean() < uniform[0].mean() / 3
+    assert capped[1].mean() < uniform[1].mean() / 3
+    assert max(e.max() for e in errors(256, np.radians(50.0))) < 0.05
+
+
+def test_gather_cap_covers_the_view():
+    scene = small_scene()
+    axis, cap = renderer.gather_cap(scene.camera)
+    fwd = scene.camera.basis()[0]
+    np.testing.assert_allclose(axis, -fwd)
+    rays = scene.camera.ray_directions()                        # every pixel's view direction
+    widest = np.degrees(np.arccos((rays @ fwd).min()))          # a corner pixel's centre
+    assert widest + 15.0 <= np.degrees(cap) <= widest + 17.0     # its corner: 1.3 degrees further out
+
+
 def test_gathered_source_equals_numpy_twin():
     scene = small_scene()
     sol = popvol.solve(scene)

@@ -30,6 +30,8 @@ GATHER_LANES = 4
 #: (its 90th percentile of sigma_t): the front-lit slab at 0.25-1 mean free paths per voxel
 #: moved by 2-10 % with blocks of 2^3 voxels (tests/test_gather.py)
 GATHER_BLOCK_MFP = 0.5
+#: the cap of denser gather directions reaches this far (radians) beyond the view's half-diagonal
+GATHER_CAP_MARGIN = np.radians(15.0)
 
 
 def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
@@ -84,7 +86,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         # the scattered light toward the camera gathered on the grid; the samples add the
         # single scattering (docs/METHOD.md, "Gathered last bounce")
         gathered = gather(medium, lights, field_bundles(solution), np.asarray(cam.origin, np.float64), seen,
-                          m.gather, gather_factor(med, m.gather_resolution))
+                          m.gather, gather_factor(med, m.gather_resolution), gather_cap(cam))
         solution = solution.single_scattering()
         combined = True
     grid, spherical = field_bundles(solution)
@@ -114,16 +116,44 @@ def field_bundles(solution: Solution) -> tuple[tuple, tuple]:
     return grid, (pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full)
 
 
-def gather_directions(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """n unit directions on a Fibonacci sphere (float64 (n, 3)) and equal weights 4 pi / n."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    azimuth = np.pi * (1.0 + np.sqrt(5.0)) * i
-    r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
-    return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], 1), np.full(n, 4.0 * np.pi / n)
+def gather_directions(n: int, axis=None, cap: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """n unit directions (float64 (n, 3)) and their weights (solid angles, summing to 4 pi).
+
+    Without ``axis``: a Fibonacci sphere, equal weights 4 pi / n. With ``axis`` (a unit vector)
+    and ``cap`` (radians, in (0, pi)): n // 2 directions on a Fibonacci spiral of the cap of
+    half-angle ``cap`` about ``axis`` and the rest on the rest of the sphere, each weighted by
+    its part's solid angle over its count: denser where the phase function toward the camera
+    peaks (renderer.gather_cap)."""
+    def spiral(m, z_hi, z_lo):           # m points uniform in z in [z_lo, z_hi], about +z
+        i = np.arange(m) + 0.5
+        z = z_hi - (z_hi - z_lo) * i / m
+        azimuth = np.pi * (1.0 + np.sqrt(5.0)) * i
+        r = np.sqrt(np.maximum(1.0 - z * z, 0.0))
+        return np.stack([r * np.cos(azimuth), r * np.sin(azimuth), z], 1)
+    if axis is None or not 0.0 < cap < np.pi or n < 2:
+        return spiral(n, 1.0, -1.0), np.full(n, 4.0 * np.pi / n)
+    c = np.cos(cap)
+    n_cap = n // 2
+    dirs = np.concatenate([spiral(n_cap, 1.0, c), spiral(n - n_cap, c, -1.0)])
+    weights = np.concatenate([np.full(n_cap, 2 * np.pi * (1 - c) / n_cap),
+                              np.full(n - n_cap, 2 * np.pi * (1 + c) / (n - n_cap))])
+    z = np.asarray(axis, np.float64) / np.linalg.norm(axis)        # rotate +z onto axis
+    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return dirs @ np.stack([x, y, z]), weights
 
 
-def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1) -> np.ndarray:
+def gather_cap(camera) -> tuple[np.ndarray, float]:
+    """The axis and half-angle of the cap where gather_directions puts half its directions: about
+    the direction from the scene toward the camera, wide enough for every pixel's view direction
+    (the half-diagonal of the field of view) plus GATHER_CAP_MARGIN for the phase function's peak."""
+    tan_half = np.tan(np.radians(camera.fov) / 2)
+    half_diagonal = np.arctan(tan_half * np.hypot(1.0, camera.width / camera.height))
+    return -camera.basis()[0], float(min(half_diagonal + GATHER_CAP_MARGIN, np.radians(120.0)))
+
+
+def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1, cap=None) -> np.ndarray:
     """float32 (nx, ny, nz, 3): the scattered light gathered toward the camera at ``eye`` from
     ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere.
 
@@ -132,7 +162,7 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     trilinear interpolation between the blocks' centres (clamped to the edge), so the sweeps
     cost about factor^-3 as much."""
     grid, spherical = bundles
-    dirs, weights = gather_directions(n_directions)
+    dirs, weights = gather_directions(n_directions, *(cap or (None, 0.0)))
     if factor > 1:
         medium, grid, needed = coarse_bundles(medium, grid, seen, factor)
     else:
