@@ -6,7 +6,7 @@ import numba
 import numpy as np
 
 from .errors import PopvolError
-from .kernels.gather import gathered_source
+from .kernels.gather import emission_lobes, gathered_source
 from .kernels.render import render_kernel
 from .kernels.source import in_scattering_source
 from .pipeline import solve, voxels_seen
@@ -167,10 +167,16 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
         medium, grid, needed = coarse_bundles(medium, grid, seen, factor)
     else:
         needed = seen
+    density = medium[0]
+    cells = np.argwhere(density > 0)
+    slot = np.full(density.shape, -1, np.int64)
+    slot[tuple(cells.T)] = np.arange(len(cells))
+    lobes = np.zeros((len(cells), 3 * len(lights[0]) * grid[0].shape[1], 7), np.float32)
+    emission_lobes(medium, lights, grid, spherical, cells, lobes)
     lanes = min(GATHER_LANES, n_directions)
     out = np.zeros((lanes,) + needed.shape + (3,), np.float32)
     norm = np.zeros((lanes,) + needed.shape, np.float32)
-    gathered_source(medium, lights, grid, spherical, eye, needed, dirs, weights, out, norm)
+    gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm)
     norm = norm.sum(axis=0, dtype=np.float64)
     light = (out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]).astype(np.float32)
     if factor > 1:

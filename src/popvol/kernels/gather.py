@@ -36,7 +36,8 @@ import math
 import numba as nb
 import numpy as np
 
-from .render import f_hg, light_in_scattering
+from .render import (DIRECTION, FIELDS, FLUX, FULL, LOBE_CAP, OFFSET, PHI, PHID, POSITION, POWER, SHAPE,
+                     diffuse_lobe_axis, f_hg, grid_fields, light_geometry, point_lookup, walk_lobe_weights)
 
 
 @nb.njit(inline="always", cache=True)
@@ -69,27 +70,89 @@ def _bilinear(buf, u, v, nu, nv, ch):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def gathered_source(medium, lights, grid, spherical, eye, needed, dirs, weights, out, norm):
+def emission_lobes(medium, lights, grid, spherical, cells, lobes):
+    """Fill ``lobes`` float32 (M, K, 7) with the in-scattered light at the centre x of each cell
+    cells[m] (int64 (M, 3) indices into the bundles' grid) as K = n_lights x n_channels x 3
+    lobes (axis (3), g, RGB weight (3)) such that the light leaving x along w is
+      L_s(x, w) / sigma_s = sum_k weight_k f_hg(axis_k . w; g_k)
+    (kernels/render.py, light_in_scattering with the camera ray d = -w): per light l and field
+    channel c, the walk's unscattered light and its rest about the light's direction at x
+    (walk_lobe_weights; divided by r^2 for a point light) and the diffusion stage's light about
+    its flux (diffuse_lobe_axis); a grey field's lobe carries the light's RGB power, channel c's
+    only colour c. Evaluated once per cell, they serve every direction of the gather."""
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    is_point = lights[0]
+    power = lights[POWER]
+    n_ch = grid[PHI].shape[1]
+    has_diffuse = grid[PHID].shape[0] > 0
+    for m in nb.prange(cells.shape[0]):
+        lights_ = lights
+        grid_ = grid
+        spherical_ = spherical
+        ix, iy, iz = cells[m, 0], cells[m, 1], cells[m, 2]
+        x = (origin[0] + ix * voxel[0], origin[1] + iy * voxel[1], origin[2] + iz * voxel[2])
+        g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[ix, iy, iz]
+        corners = (ix, ix, iy, iy, iz, iz, 0.0, 0.0, 0.0)
+        for l in range(is_point.shape[0]):
+            point, mu, inv_r2, q0, q1, q2 = light_geometry(lights_, spherical_, l, x, (0.0, 0.0, 1.0))
+            if point:                   # the light travels from its position p through x
+                p = lights_[POSITION][l]
+                r = math.sqrt(inv_r2)
+                axis = ((x[0] - p[0]) * r, (x[1] - p[1]) * r, (x[2] - p[2]) * r)
+            else:
+                axis = (lights_[DIRECTION][l, 0], lights_[DIRECTION][l, 1], lights_[DIRECTION][l, 2])
+            for c in range(n_ch):
+                if point:
+                    phi, phia, pdir = point_lookup(spherical_[FIELDS], spherical_[OFFSET][l, c], spherical_[SHAPE][l],
+                                                   q0, q1, q2, spherical_[FULL][l])
+                else:
+                    phi, phia, pdir = grid_fields(grid_, l, c, corners)
+                w_dir, g_dir, w_rest, g_rest = walk_lobe_weights(phi, phia, pdir, g)
+                pd, jx, jy, jz, g_d = 0.0, 0.0, 0.0, 1.0, 0.0
+                if has_diffuse:
+                    pd, jx, jy, jz, g_d = diffuse_lobe_axis(grid_[PHID][l, c], grid_[FLUX][l, c], corners, g,
+                                                            grid_[LOBE_CAP][l])
+                k = 3 * (l * n_ch + c)
+                for kind in range(3):
+                    if kind == 2:
+                        a0, a1, a2, gk, wk = jx, jy, jz, g_d, pd
+                    else:
+                        a0, a1, a2 = axis
+                        gk, wk = (g_dir, w_dir * inv_r2) if kind == 0 else (g_rest, w_rest * inv_r2)
+                    lobes[m, k + kind, 0] = a0
+                    lobes[m, k + kind, 1] = a1
+                    lobes[m, k + kind, 2] = a2
+                    lobes[m, k + kind, 3] = gk
+                    for colour in range(3):
+                        on = n_ch == 1 or colour == c
+                        lobes[m, k + kind, 4 + colour] = wk * power[l, colour] if on else 0.0
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm):
     """Add to ``out`` float32 (lanes, nx, ny, nz, 3) the gathered L_s / sigma_s toward the
     camera at ``eye`` (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
     quadrature's sum, at the voxels where ``needed``; the caller sums the lanes and divides.
+    ``lobes``: the in-scattered light of the non-empty voxels (:func:`emission_lobes`), voxel
+    (i, j, k)'s at row slot[i, j, k] (int64, -1 where the density is 0).
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
     directions one after another (so the sum does not depend on the number of threads).
-    dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium, lights, grid,
-    spherical: the render kernel's bundles, on one grid (the medium's or a coarser one)."""
+    dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium: the render
+    kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
     lanes = out.shape[0]
     for lane in nb.prange(lanes):
         for i in range(lane, dirs.shape[0], lanes):
-            _sweep(medium, lights, grid, spherical, eye, needed, dirs[i], weights[i], out[lane], norm[lane])
+            _sweep(medium, lobes, slot, eye, needed, dirs[i], weights[i], out[lane], norm[lane])
 
 
 @nb.njit(fastmath=True, cache=True)
-def _sweep(medium, lights, grid, spherical, eye, needed, w, weight, out, norm):
+def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
     """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
     weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, 3) and the weight
     times f_hg to ``norm`` (nx, ny, nz) where ``needed``."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     n = density.shape
+    n_lobes = lobes.shape[1]
     w0, w1, w2 = w[0], w[1], w[2]
     a = 0
     if abs(w1) > abs(w0) and abs(w1) >= abs(w2):
@@ -107,24 +170,28 @@ def _sweep(medium, lights, grid, spherical, eye, needed, w, weight, out, norm):
     # before (prev) and this one (cur)
     prev = np.zeros((3, nb_, nc_, 3))
     cur = np.zeros((3, nb_, nc_, 3))
-    d = (-w0, -w1, -w2)                 # the "camera ray" that sees light leaving along w
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         for p in range(nb_):
             for q in range(nc_):
                 ix, iy, iz = _voxel(a, s, p, q)
                 rho = density[ix, iy, iz]
-                x = (origin[0] + ix * voxel[0], origin[1] + iy * voxel[1], origin[2] + iz * voxel[2])
                 g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[ix, iy, iz]
                 j0 = j1 = j2 = 0.0
                 alb = 0.0
-                if rho > 0.0:
-                    corners = (ix, ix, iy, iy, iz, iz, 0.0, 0.0, 0.0)
-                    for l in range(lights[0].shape[0]):
-                        e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, True)
-                        j0 += e0
-                        j1 += e1
-                        j2 += e2
+                row = slot[ix, iy, iz]
+                if row >= 0:
+                    for k in range(n_lobes):
+                        l0 = lobes[row, k, 4]
+                        l1 = lobes[row, k, 5]
+                        l2 = lobes[row, k, 6]
+                        if l0 == 0.0 and l1 == 0.0 and l2 == 0.0:
+                            continue
+                        f = f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2,
+                                 lobes[row, k, 3])
+                        j0 += l0 * f
+                        j1 += l1 * f
+                        j2 += l2 * f
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[ix, iy, iz]
                 for ch in range(3):
                     sig = scale[ch] * rho
@@ -145,9 +212,9 @@ def _sweep(medium, lights, grid, spherical, eye, needed, w, weight, out, norm):
                     cur[1, p, q, ch] = qv
                     cur[2, p, q, ch] = sig
                 if needed[ix, iy, iz]:
-                    ex = eye[0] - x[0]
-                    ey = eye[1] - x[1]
-                    ez = eye[2] - x[2]
+                    ex = eye[0] - (origin[0] + ix * voxel[0])
+                    ey = eye[1] - (origin[1] + iy * voxel[1])
+                    ez = eye[2] - (origin[2] + iz * voxel[2])
                     r = max(math.sqrt(ex * ex + ey * ey + ez * ez), 1e-300)
                     f = weight * f_hg((w0 * ex + w1 * ey + w2 * ez) / r, g)
                     norm[ix, iy, iz] += f

@@ -229,44 +229,67 @@ def _clamp_g(g):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def walk_lobes(p, pa, pdir, mu, g):
-    """The walk's light scattered toward the camera, per unit power: phi_dir f_hg(mu; g) +
-    (phi - phi_dir) f_hg(mu; g A_rest), A_rest = (phia - phi_dir) / (phi - phi_dir), with phi_dir
-    taken at most phi (docs/METHOD.md Eq. 23; f_hg(.; g A) of a lobe: supplement Eq. 3).
-    p, pa, pdir: phi, phia, phi_dir at the sample (pa, pdir are not read where p <= 0)."""
-    val = 0.0
+def walk_lobe_weights(p, pa, pdir, g):
+    """The walk's light as two lobes about the light's direction, seen through the phase:
+    (phi_dir, g, phi - phi_dir, g A_rest), A_rest = (phia - phi_dir) / (phi - phi_dir), with
+    phi_dir taken at most phi (docs/METHOD.md Eq. 23; f_hg(.; g A) of a lobe: supplement Eq. 3);
+    a weight is 0 where its lobe is empty. p, pa, pdir: phi, phia, phi_dir at the sample (pa,
+    pdir are not read where p <= 0); the g are clamped to G_MAX."""
+    w_dir = 0.0
+    g_rest = 0.0
     if p > 0.0:
         pdir = min(pdir, p)
         if pdir > 0.0:          # the unscattered light: a delta lobe
-            val = pdir * f_hg(mu, _clamp_g(g))
+            w_dir = pdir
             p -= pdir
             pa -= pdir
     if p > 0.0:
-        val += p * f_hg(mu, _clamp_g(g * (pa / p)))
+        g_rest = _clamp_g(g * (pa / p))
+    return w_dir, _clamp_g(g), max(p, 0.0), g_rest
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def walk_lobes(p, pa, pdir, mu, g):
+    """The walk's light scattered toward the camera, per unit power: phi_dir f_hg(mu; g) +
+    (phi - phi_dir) f_hg(mu; g A_rest) (:func:`walk_lobe_weights`), mu = d_l . (-d)."""
+    w_dir, g_dir, w_rest, g_rest = walk_lobe_weights(p, pa, pdir, g)
+    val = 0.0
+    if w_dir > 0.0:
+        val = w_dir * f_hg(mu, g_dir)
+    if w_rest > 0.0:
+        val += w_rest * f_hg(mu, g_rest)
     return val
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def diffuse_lobe(phid, flux, corners, d, g, cap):
-    """The diffusion stage's light scattered along the camera ray d, per unit power:
-    phi_d f_hg(-d . J/|J|; g A_d), A_d = min(|J| / phi_d, cap), a lobe about
-    its own flux J convolved with the phase (supplement Eq. 3; docs/METHOD.md Eq. 24);
-    phi_d / 4 pi where J = 0. phid (nx, ny, nz) and flux (3, nx, ny, nz) of one light and
-    channel, on the medium's grid at the stencil ``corners``. ``cap``: MAX_DIFFUSE_ANISOTROPY for
-    the diffusion stage's light; 1 for the six-ordinate walk's scattered light, which the
-    pipeline stores in the same fields (docs/METHOD.md, "Six ordinates")."""
+def diffuse_lobe_axis(phid, flux, corners, g, cap):
+    """The diffusion stage's light as one lobe about its own flux J, seen through the phase:
+    (phi_d, J/|J| (3 numbers), g A_d), A_d = min(|J| / phi_d, cap) (supplement Eq. 3;
+    docs/METHOD.md Eq. 24); isotropic (g A_d = 0) where J = 0, weight 0 where phi_d <= 0.
+    phid (nx, ny, nz) and flux (3, nx, ny, nz) of one light and channel, on the medium's grid at
+    the stencil ``corners``. ``cap``: MAX_DIFFUSE_ANISOTROPY for the diffusion stage's light; 1
+    for the six-ordinate walk's scattered light, which the pipeline stores in the same fields
+    (docs/METHOD.md, "Six ordinates")."""
     pd = interpolate(phid, corners)
     if pd <= 0.0:
-        return 0.0
+        return 0.0, 0.0, 0.0, 1.0, 0.0
     jx = interpolate(flux[0], corners)
     jy = interpolate(flux[1], corners)
     jz = interpolate(flux[2], corners)
     jn = math.sqrt(jx * jx + jy * jy + jz * jz)
     if jn <= 0.0:
-        return pd * INV_FOUR_PI
-    A = min(jn / pd, cap)
-    mu = -(jx * d[0] + jy * d[1] + jz * d[2]) / jn
-    return pd * f_hg(mu, _clamp_g(g * A))
+        return pd, 0.0, 0.0, 1.0, 0.0
+    return pd, jx / jn, jy / jn, jz / jn, _clamp_g(g * min(jn / pd, cap))
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def diffuse_lobe(phid, flux, corners, d, g, cap):
+    """The diffusion stage's light scattered along the camera ray d, per unit power:
+    phi_d f_hg(-d . J/|J|; g A_d) (:func:`diffuse_lobe_axis`); phi_d / 4 pi where J = 0."""
+    pd, ax, ay, az, g_d = diffuse_lobe_axis(phid, flux, corners, g, cap)
+    if pd <= 0.0:
+        return 0.0
+    return pd * f_hg(-(ax * d[0] + ay * d[1] + az * d[2]), g_d)
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
