@@ -1,15 +1,15 @@
 """The walk's variants against Mitsuba (run from the repository root, with ../shared beside the
 checkout):
 
-    python scripts/walk_study.py [--resolution 64] [--variants KEY,...] [NAME ...]
+    python scripts/walk_study.py [--resolution 64] [--gather N] [--variants KEY,...] [NAME ...]
 
-Variants (KEY: what differs from the default method): "default" (sweeps + diffusion), "binned" (the binned
-wavefront + diffusion: experimental.solver = "binned", kernels/binned.py, each cell's light kept
-in fixed anisotropy bins, so the walk is linear in the light), "walk" and "binned-walk" (the
-same walks alone), "ordinates" (the six-ordinate wavefront, kernels/ordinates.py, which walks
-all of a sun's light; point lights keep the sweeps and the diffusion stage), "gather" and
-"ordinates-gather" (the default and the six ordinates with the last scattering gathered from 64
-directions, experimental.gather, kernels/gather.py). Default: the first five.
+Variants (KEY: what differs from the default method): "default" (sweeps + diffusion), "binned"
+(the binned wavefront + diffusion: experimental.solver = "binned", kernels/binned.py, each
+cell's light kept in fixed anisotropy bins, so the walk is linear in the light), "walk" and
+"binned-walk" (the same walks alone), "ordinates" (the six-ordinate wavefront,
+kernels/ordinates.py, which walks all of a sun's light; point lights keep the sweeps and the
+diffusion stage). Default: all five. ``--gather N``: method.gather of every variant (default:
+the method's, 64 directions; 0: the fields' lobes light the camera, kernels/gather.py).
 
 NAME: "regression" (tests/fixtures/regression_cloud), a scene of scenes/accuracy/ (reference in
 build/accuracy/, made by scripts/accuracy_table.py) or of the gallery (examples/NAME.toml,
@@ -30,13 +30,11 @@ from popvol.reference import load_reference
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["regression", "wdas_angle_090", "wdas_side", "wdas_front", "wdas_silver", "field_sun", "dragon_sky",
          "demo_dusk"]
-VARIANTS = {"default": ("sweeps + diffusion (default)", {}),
+VARIANTS = {"default": ("sweeps + diffusion, gathered (default)", {}),
             "binned": ("binned + diffusion", {"solver": "binned"}),
             "walk": ("sweeps, walk alone", {"isotropic": "walk"}),
             "binned-walk": ("binned, walk alone", {"solver": "binned", "isotropic": "walk"}),
-            "ordinates": ("six ordinates", {"solver": "ordinates"}),
-            "gather": ("default, gathered last bounce (64)", {"gather": 64}),
-            "ordinates-gather": ("six ordinates, gathered last bounce (64)", {"solver": "ordinates", "gather": 64})}
+            "ordinates": ("six ordinates", {"solver": "ordinates"})}
 
 
 def case(name: str) -> tuple[Path, Path]:
@@ -50,8 +48,8 @@ def case(name: str) -> tuple[Path, Path]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", type=int, default=64)
-    ap.add_argument("--variants", default="default,binned,walk,binned-walk,ordinates",
-                    help=f"comma-separated, of {', '.join(VARIANTS)} (default: the first five)")
+    ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated, of {', '.join(VARIANTS)}")
+    ap.add_argument("--gather", type=int, default=None, help="method.gather of every variant (default: the method's)")
     ap.add_argument("names", nargs="*", default=NAMES)
     args = ap.parse_args()
     keys = [k for k in args.variants.split(",") if k]
@@ -68,6 +66,8 @@ def main() -> None:
         ref = load_reference(ref_path)
         h, w = ref.image.shape[:2]
         for label, overrides in (VARIANTS[k] for k in keys):
+            if args.gather is not None:
+                overrides = {**overrides, "gather": args.gather}
             scene = popvol.load_scene(scene_path, width=w, height=h, resolution=args.resolution, **overrides)
             t0 = time.perf_counter()
             solution = popvol.solve(scene)

@@ -1,4 +1,4 @@
-"""The gathered last scattering (experimental.gather, kernels/gather.py): the kernel against its
+"""The gathered last scattering (method.gather, kernels/gather.py): the kernel against its
 NumPy twin, and the front-lit slab's reflection against the plane-parallel Monte Carlo of
 tests/montecarlo.py, where lighting the camera from the fields' lobes is 18-40 % too bright."""
 import numpy as np
@@ -13,12 +13,12 @@ from popvol.scene import apply_overrides
 SUN = {"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": [5.0, 4.85, 4.5]}
 
 
-def small_scene(**experimental):
+def small_scene(**method):
     return popvol.scene_from_dict({
         "medium": {"type": "procedural", "resolution": 10, "seed": 3, "scale": 30.0, "albedo": 0.95, "g": 0.6},
         "lights": [SUN],
         "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0, "width": 24, "height": 16},
-        "method": {"resolution": 12}, "experimental": experimental})
+        "method": {"resolution": 12, **method}})
 
 
 def test_gather_directions_cover_the_sphere():
@@ -79,9 +79,9 @@ def test_gathered_source_equals_numpy_twin():
 
 
 def test_gather_changes_only_the_rendering():
-    """gather is a render-only knob: the solution is reused, and the image keeps its single
-    scattering where nothing else reaches (gather = 0 is the default image)."""
-    scene = small_scene()
+    """gather is a render-only knob: the solution is reused, and the image changes (gather = 0:
+    the fields' lobes light every sample)."""
+    scene = small_scene(gather=0)
     sol = popvol.solve(scene)
     plain = popvol.render(scene, sol, jitter=False)
     scene = apply_overrides(scene, gather=16)             # the same medium, another method
@@ -153,7 +153,7 @@ def test_a_coarser_gather_grid_keeps_the_image():
         "medium": {"type": "procedural", "resolution": 20, "seed": 3, "scale": 2.0, "albedo": 0.95, "g": 0.6},
         "lights": [SUN],
         "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0, "width": 48, "height": 32},
-        "method": {"resolution": 20}, "experimental": {"gather": 32, "gather_resolution": 0}})
+        "method": {"resolution": 20, "gather": 32, "gather_resolution": 0}})
     assert renderer.gather_factor(scene.medium, 10) == 2
     sol = popvol.solve(scene)
     fine = popvol.render(scene, sol, jitter=False)
@@ -173,3 +173,12 @@ def test_gather_blocks_stay_optically_thin():
     assert renderer.gather_factor(slab_scene(0.125, 16).medium, 4) == 4
     assert renderer.gather_factor(slab_scene(0.125, 16).medium, 0) == 1
     assert renderer.gather_factor(slab_scene(1.0, 16).medium, 4) == 1
+
+
+def test_single_scattering_solution_is_not_gathered():
+    """A solution of the unscattered light alone renders as the single scattering whatever
+    method.gather says (the samples light it; nothing is gathered from it)."""
+    scene = small_scene()
+    single = popvol.solve(scene).single_scattering()
+    np.testing.assert_array_equal(popvol.render(scene, single, jitter=False),
+                                  popvol.render(apply_overrides(scene, gather=0), single, jitter=False))

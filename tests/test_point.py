@@ -205,7 +205,7 @@ def test_render_kernel_equals_numpy_twin_with_a_point_light():
     cam = Camera([0.5, 0.62, 2.4], [0.5, 0.5, 0.5], [0, 1, 0], 32.0, 12, 8)
     from popvol.lights import DirectionalLight
     scene = Scene(med, [PointLight([0.3, 0.62, 0.45], [1.0, 0.8, 0.6]), DirectionalLight([0, -1, 0], 0.5)],
-                  cam, np.array([0.1, 0.2, 0.3]), Method(resolution=16, step=0.25))
+                  cam, np.array([0.1, 0.2, 0.3]), Method(resolution=16, step=0.25, gather=0))   # lobes, as the twin
     sol = solve(scene)
     assert list(sol.is_point) == [True, False]
     img = render(scene, sol, jitter=False)

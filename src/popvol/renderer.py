@@ -43,7 +43,9 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
     one in-scattering source built for this view (kernels/source.py), else light by light
     (None: whichever costs less, by COMBINED_VOXELS_PER_SAMPLE; the images differ by relMSE
     <= 1e-4, docs/METHOD.md); ``skip``: jump over empty blocks of the medium (the image is bitwise the same).
-    With ``method.gather`` > 0 the combined source is always used (it holds the gathered light).
+    With ``method.gather`` > 0 the combined source is always used (it holds the gathered light),
+    except for a solution of the unscattered light alone (``Solution.single_scattering()``),
+    which is rendered as it is.
     """
     if solution is None:
         solution = solve(scene)
@@ -82,7 +84,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
               np.ascontiguousarray(solution.positions, np.float64))
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
-    if m.gather > 0:
+    gathering = m.gather > 0 and not solution.single
+    if gathering:
         # the scattered light toward the camera gathered on the grid; the samples add the
         # single scattering (docs/METHOD.md, "Gathered last bounce")
         gathered = gather(medium, lights, field_bundles(solution), np.asarray(cam.origin, np.float64), seen,
@@ -100,7 +103,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         in_scattering_source(medium, lights, grid, spherical, np.asarray(cam.origin, np.float64),
                              seen, source)
     near = float(NEAR_VOXELS * med.voxel_size.min())
-    if m.gather > 0:
+    if gathering:
         source = source + gathered if source.size else gathered
         near = 0.0                        # every sample reads the gathered light from the grid
     view = (source, near)

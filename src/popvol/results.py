@@ -175,6 +175,8 @@ class Solution:
     key: tuple = ()            # what it was solved for (pipeline.solve's reuse)
     lobe_cap: np.ndarray | None = None   # float64 (n_lights,): the largest anisotropy of each
     #                          light's phid lobe (None: MAX_DIFFUSE_ANISOTROPY for every light)
+    single: bool = False       # the unscattered light alone (single_scattering()): the renderer
+    #                          gathers no further scattering from it
 
     def __post_init__(self):
         if self.lobe_cap is None:
@@ -191,12 +193,13 @@ class Solution:
         which the renderer lights with f_hg(mu; g): docs/METHOD.md Eq. 23), with no diffuse
         light. Rendered, it is the light that reaches the camera after exactly one scattering
         event, what a path tracer's paths of that length give (Mitsuba volpath ``max_depth =
-        2``). Environment lights (a0 < 1) have no direct part, so they give nothing here."""
+        2``), whatever ``method.gather`` says. Environment lights (a0 < 1) have no direct part,
+        so they give nothing here."""
         fields = self.points.fields.copy()
         fields[0] = fields[1] = fields[2]
         return dataclasses.replace(self, phi=self.direct, phia=self.direct,
                                    phid=_empty(0, *self.phid.shape[1:]), flux=_empty(0, *self.flux.shape[1:]),
-                                   points=dataclasses.replace(self.points, fields=fields))
+                                   points=dataclasses.replace(self.points, fields=fields), single=True)
 
     @property
     def nbytes(self) -> int:

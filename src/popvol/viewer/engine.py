@@ -8,7 +8,8 @@
   the domains of lights that did not change from the previous solution.
 
 Two levels of quality: "draft" (while the user drags: half the pixels per axis, a coarser
-ray-marching step, and, if no full solution is at hand, a coarser propagation grid) and "full"
+ray-marching step, no gathered last bounce, and, if no full solution is at hand, a coarser
+propagation grid) and "full"
 (the view's own method and size, what Save writes and ``popvol render`` reproduces).
 
 A sequence (docs/SCENE.md, "Sequences") adds the ``frame`` setting: each frame's scene (its
@@ -121,7 +122,7 @@ class Engine:
                 raise PopvolError(f"{name} = {v!r} must be an integer in [2, 4096]")
         self.method = view_method(self.base.method, resolution)
         self.draft_method = view_method(self.base.method, min(draft_resolution, self.method.resolution),
-                                        spp=1, step=min(16.0, self.base.method.step * draft_step))
+                                        spp=1, step=min(16.0, self.base.method.step * draft_step), gather=0)
         cam = self.base.camera
         self.size = {FULL: (cam.width, cam.height),
                      DRAFT: (max(1, round(cam.width * draft_scale)), max(1, round(cam.height * draft_scale)))}
