@@ -13,7 +13,7 @@ from popvol import bench
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_VOLUME = REPO.parent / "shared" / "data" / "volumes" / "npz" / bench.WDAS_VOLUME
-WDAS_ROWS = ("wdas_sun", "wdas_sun_walk", "wdas_sun_sky")
+WDAS_ROWS = ("wdas_sun", "wdas_sun_lobes", "wdas_sun_walk", "wdas_sun_sky")
 
 
 def figures(node):
@@ -109,7 +109,8 @@ def test_installed_bench_finds_its_scenes_and_says_what_it_skipped(tmp_path):
         assert row["image"] == [160, 90]
         assert name in table
     assert res["scenes"]["wdas_sun_sky"]["domains"] == 9
-    assert res["scenes"]["wdas_sun_walk"]["method"].endswith("walk")
+    assert res["scenes"]["wdas_sun_walk"]["method"].endswith("walk, gather 64")
+    assert res["scenes"]["wdas_sun_lobes"]["method"].endswith("gather 0")
     p = res["propagation"][0]
     assert p["stream_cells_per_s"]["median"] > 0 and p["sweep_over_stream"] > 0
     figs = list(figures(res))

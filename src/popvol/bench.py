@@ -7,10 +7,11 @@ compiles the kernels and fills the caches.
   64^3 and 128^3 (a fixed number of iterations), and of a streaming kernel with the sweep's
   loads and stores but no physics (:func:`_stream`): the ratio sweep / stream says how close the
   solver is to this machine's memory bandwidth; render throughput in camera samples
-  (pixels x spp) per second at 640x360 on the same clouds;
+  (pixels x spp) per second at 640x360 on the same clouds (the ray march, without the gather);
 - scenes, end to end, per stage (load, resample, propagate, diffusion, fields, render, total):
-  the built-in demo, and the WDAS cloud under the sun (default method, and the walk alone) and
-  under sun + 8-direction sky. The WDAS scenes ship with popvol (``popvol/bench_scenes``) and
+  the built-in demo, and the WDAS cloud under the sun (default method, without the gathered last
+  bounce, and the walk alone) and under sun + 8-direction sky; the render stage includes the
+  gather. The WDAS scenes ship with popvol (``popvol/bench_scenes``) and
   name their volume by file name only; it is looked up in the data folder (:func:`find_data`).
   A scene whose volume is missing is reported as skipped, with the reason.
 - peak memory of each row: the process's resident-set high-water mark (VmHWM) over the row's
@@ -58,6 +59,8 @@ SCENES = {
              "built-in demo cloud under the sun"),
     "wdas_sun": ("wdas_sun.toml", {}, {"width": 160, "height": 90, "resolution": 64},
                  "WDAS cloud under the sun, default method"),
+    "wdas_sun_lobes": ("wdas_sun.toml", {"gather": 0}, {"width": 160, "height": 90, "resolution": 64},
+                       "WDAS cloud under the sun, without the gathered last bounce (gather = 0)"),
     "wdas_sun_walk": ("wdas_sun.toml", {"isotropic": "walk"},
                       {"width": 160, "height": 90, "resolution": 64},
                       "WDAS cloud under the sun, the walk alone (isotropic = walk)"),
@@ -266,9 +269,10 @@ def _stream(R, Ra, Th, Dh, phi, phia):
 
 def bench_propagation(resolution: int, repeat: int, width=640, height=360) -> dict:
     """The demo cloud as an n^3 problem: procedural medium with n voxels across, light domain of
-    n cells along its longest side; propagation, streaming and render throughput."""
+    n cells along its longest side; propagation, streaming and render throughput (the ray march's:
+    gather = 0, since the gathered last bounce costs per frame, not per sample)."""
     data = {**DEMO_SCENE, "medium": {**DEMO_SCENE["medium"], "resolution": resolution},
-            "method": {**DEMO_SCENE["method"], "resolution": resolution},
+            "method": {**DEMO_SCENE["method"], "resolution": resolution, "gather": 0},
             "camera": {**DEMO_SCENE["camera"], "width": width, "height": height}}
     scene = scene_from_dict(data, source=f"<demo cloud at {resolution}^3>")
     light = scene.lights[0]
@@ -329,7 +333,7 @@ def bench_scene(load, repeat: int, source: str) -> dict:
             stages["total"].append(t3 - t0)
     d = [ds.result for ds in solution.domains]
     m, cam = scene.method, scene.camera
-    return {"scene": source, "method": f"{m.rule} + {m.decay} + {m.isotropic}",
+    return {"scene": source, "method": f"{m.rule} + {m.decay} + {m.isotropic}, gather {m.gather}",
             "image": [cam.width, cam.height], "resolution": m.resolution,
             "environment_resolution": m.environment_resolution,
             "domains": len(solution.domains), "domain_shape": list(solution.domains[0].domain.shape),
