@@ -182,3 +182,27 @@ def test_single_scattering_solution_is_not_gathered():
     single = popvol.solve(scene).single_scattering()
     np.testing.assert_array_equal(popvol.render(scene, single, jitter=False),
                                   popvol.render(apply_overrides(scene, gather=0), single, jitter=False))
+
+
+def test_gather_within_the_occupied_box_is_the_whole_grids(monkeypatch):
+    """Transporting the light only within the box of the occupied voxels (plus GATHER_MARGIN)
+    gives the light of the whole grid: nothing outside emits, and what leaves never returns."""
+    scene = popvol.scene_from_dict({
+        "medium": {"type": "procedural", "resolution": 24, "seed": 3, "scale": 2.0, "albedo": 0.95, "g": 0.6},
+        "lights": [SUN], "method": {"resolution": 16},
+        "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0, "width": 24, "height": 16}})
+    from popvol.medium import Medium
+    med = scene.medium                                    # the cloud in a grid 6 voxels wider
+    scene.medium = Medium(np.pad(med.density, 6), med.voxel_size, med.origin - 6 * med.voxel_size,
+                          scale=med.scale, albedo=med.albedo, g=med.g)
+    sol = popvol.solve(scene)
+    inputs = renderer.render_inputs(scene, sol)
+    seen = voxels_seen(scene.medium.density)
+    box = renderer.occupied_box((scene.medium.density > 0) | seen, renderer.GATHER_MARGIN)
+    assert np.prod([b.stop - b.start for b in box]) < 0.8 * seen.size           # the test crops
+    args = (inputs[0], inputs[1], renderer.field_bundles(sol), np.asarray(scene.camera.origin, float), seen, 16)
+    cropped = renderer.gather(*args)
+    monkeypatch.setattr(renderer, "GATHER_MARGIN", 1000)
+    whole = renderer.gather(*args)
+    assert cropped.max() > 0
+    np.testing.assert_allclose(cropped, whole, rtol=1e-4, atol=1e-6 * whole.max())

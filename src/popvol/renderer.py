@@ -32,6 +32,8 @@ GATHER_LANES = 4
 GATHER_BLOCK_MFP = 0.5
 #: the cap of denser gather directions reaches this far (radians) beyond the view's half-diagonal
 GATHER_CAP_MARGIN = np.radians(15.0)
+#: voxels to spare around the box the gather transports light in
+GATHER_MARGIN = 2
 
 
 def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
@@ -160,16 +162,22 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     """float32 (nx, ny, nz, 3): the scattered light gathered toward the camera at ``eye`` from
     ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere.
 
-    With ``factor`` > 1 the light is transported on a grid of blocks of factor^3 voxels (the
-    medium and the fields averaged over each block's voxels) and read back at the voxels by
-    trilinear interpolation between the blocks' centres (clamped to the edge), so the sweeps
-    cost about factor^-3 as much."""
+    The light is transported within the box of the voxels that hold density or are seen, with
+    GATHER_MARGIN voxels to spare (outside it there is nothing to emit, and light that leaves a
+    box never comes back). With ``factor`` > 1 it is transported on a grid of blocks of
+    factor^3 voxels of that box (the medium and the fields averaged over each block's voxels) and
+    read back at the voxels by trilinear interpolation between the blocks' centres (clamped to
+    the edge), so the sweeps cost about factor^-3 as much. ``cap``: (axis, half-angle) of
+    gather_directions' cap, or None for directions on the whole sphere."""
     grid, spherical = bundles
     dirs, weights = gather_directions(n_directions, *(cap or (None, 0.0)))
+    box = occupied_box((medium[0] > 0) | seen, GATHER_MARGIN)
+    medium, grid = crop_bundles(medium, grid, box)
+    seen_box = seen[box]
     if factor > 1:
-        medium, grid, needed = coarse_bundles(medium, grid, seen, factor)
+        medium, grid, needed = coarse_bundles(medium, grid, seen_box, factor)
     else:
-        needed = seen
+        needed = seen_box
     density = medium[0]
     cells = np.argwhere(density > 0)
     slot = np.full(density.shape, -1, np.int64)
@@ -183,9 +191,33 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     norm = norm.sum(axis=0, dtype=np.float64)
     light = (out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]).astype(np.float32)
     if factor > 1:
-        light = upsample(light, factor, seen.shape)
-    light[~seen] = 0.0
-    return light
+        light = upsample(light, factor, seen_box.shape)
+    light[~seen_box] = 0.0
+    full = np.zeros(seen.shape + (3,), np.float32)
+    full[box] = light
+    return full
+
+
+def occupied_box(mask: np.ndarray, margin: int) -> tuple[slice, slice, slice]:
+    """The index box of ``mask``'s true voxels (bool (nx, ny, nz)), ``margin`` voxels wider on
+    every side within the grid (a one-voxel box where none is true)."""
+    idx = np.argwhere(mask)
+    if idx.size == 0:
+        return (slice(0, 1),) * 3
+    lo = np.maximum(idx.min(axis=0) - margin, 0)
+    hi = np.minimum(idx.max(axis=0) + 1 + margin, mask.shape)
+    return tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
+
+
+def crop_bundles(medium, grid, box) -> tuple[tuple, tuple]:
+    """The render kernel's medium and grid bundles cut to the index ``box`` (constants stay
+    constants; the origin moves to the box's first voxel)."""
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    phi, phia, direct, phid, flux, lobe_cap = grid
+    cut = (lambda a: a if a.size <= 1 else np.ascontiguousarray(a[(Ellipsis,) + box]))
+    start = np.array([b.start for b in box], np.float64)
+    return ((cut(density), scale, cut(albedo), albedo_rgb, cut(g_grid), origin + start * voxel, voxel, lo, hi,
+             blocks, block), tuple(cut(f) for f in (phi, phia, direct, phid, flux)) + (lobe_cap,))
 
 
 def gather_factor(medium, resolution: int) -> int:
