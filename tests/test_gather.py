@@ -120,16 +120,33 @@ def test_block_mean_is_the_mean_of_each_block():
         np.testing.assert_allclose(got[:, i, j, k], expect, rtol=1e-6)
 
 
+def test_block_means_kernel_equals_numpy_twin():
+    x = np.random.default_rng(2).random((3, 2, 11, 7, 9)).astype(np.float32)
+    for factor in (1, 2, 3, 4):
+        np.testing.assert_allclose(renderer.block_mean(x, factor), ref.block_mean(x, factor), rtol=1e-5)
+
+
 def test_upsample_reproduces_a_linear_field():
     """Trilinear interpolation between the blocks' centres is exact for a linear function of
-    the voxel index, inside the outermost centres (clamped to the edge outside them)."""
+    the voxel index, inside the outermost centres (clamped to the edge outside them); voxels not
+    needed stay 0."""
     factor, shape = 3, (12, 9, 15)
     centres = [(np.arange(-(-n // factor)) * factor + 0.5 * (factor - 1)) for n in shape]
     f = (lambda x, y, z: 0.5 + 2.0 * x - 1.0 * y + 0.25 * z)
     coarse = f(*np.meshgrid(*centres, indexing="ij"))[..., None]
-    got = renderer.upsample(coarse.astype(np.float32), factor, shape)[..., 0]
+    needed = np.random.default_rng(3).random(shape) < 0.7
+    got = renderer.upsample(coarse.astype(np.float32), factor, needed)[..., 0]
     idx = np.meshgrid(*[np.clip(np.arange(n), c[0], c[-1]) for n, c in zip(shape, centres)], indexing="ij")
-    np.testing.assert_allclose(got, f(*idx), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(got[needed], f(*idx)[needed], rtol=1e-5, atol=1e-5)
+    assert np.all(got[~needed] == 0)
+
+
+def test_upsample_kernel_equals_numpy_twin():
+    coarse = np.random.default_rng(4).random((4, 3, 5, 3)).astype(np.float32)
+    needed = np.ones((11, 7, 14), bool)
+    for factor in (2, 3):
+        np.testing.assert_allclose(renderer.upsample(coarse, factor, needed),
+                                   ref.upsample(coarse, factor, needed.shape), rtol=1e-5, atol=1e-6)
 
 
 def test_gather_does_not_depend_on_its_lanes(monkeypatch):

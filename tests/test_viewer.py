@@ -305,10 +305,10 @@ def test_saved_toml_keeps_the_scene_and_makes_paths_absolute(engine, tmp_path):
 
 def test_view_resolution_scales_the_method():
     from popvol.scene import Method
-    m = Method(resolution=128, diffusion_resolution=64, environment_resolution=64)
+    m = Method(resolution=128, diffusion_resolution=64, environment_resolution=64, gather_resolution=64)
     from popvol.viewer.engine import view_method
     v = view_method(m, 64)
-    assert (v.resolution, v.diffusion_resolution, v.environment_resolution) == (64, 32, 32)
+    assert (v.resolution, v.diffusion_resolution, v.environment_resolution, v.gather_resolution) == (64, 32, 32, 32)
     assert view_method(m, 256).resolution == 128                  # never finer than the scene
     assert view_method(Method(resolution=32, diffusion_resolution=0), 16).diffusion_resolution == 0
 

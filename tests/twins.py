@@ -628,3 +628,39 @@ def boundary_weight(mask) -> np.ndarray:
     l1 = sum(np.abs(gr) for gr in grads)
     w = np.where(mask & (l2 > 1e-6), l2 / np.maximum(l1, 1e-30), 1.0)
     return w.astype(np.float32)
+
+
+def block_mean(x: np.ndarray, factor: int) -> np.ndarray:
+    """Twin of kernels.sampling.block_means (through renderer.block_mean): float32, the mean of x
+    (..., nx, ny, nz) over blocks of factor^3 voxels along its last three axes (the blocks at
+    the far edges over the voxels they hold), one axis at a time."""
+    out = np.asarray(x, np.float32)
+    for axis in range(out.ndim - 3, out.ndim):
+        n = out.shape[axis]
+        m = -(-n // factor)
+        if m * factor != n:
+            pad = [(0, 0)] * out.ndim
+            pad[axis] = (0, m * factor - n)
+            out = np.pad(out, pad)
+        out = out.reshape(out.shape[:axis] + (m, factor) + out.shape[axis + 1:]).sum(axis=axis + 1)
+        held = np.minimum(factor, n - factor * np.arange(m)).astype(np.float32)    # voxels per block
+        out /= held.reshape((m,) + (1,) * (out.ndim - axis - 1))
+    return out
+
+
+
+
+def upsample(coarse: np.ndarray, factor: int, shape: tuple) -> np.ndarray:
+    """Twin of kernels.sampling.upsample_blocks: (nx, ny, nz, C) from the blocks' values
+    ``coarse`` at their centres, trilinear at every voxel centre, clamped to the edge
+    (separable: one linear interpolation per axis)."""
+    out = coarse
+    for axis, n in enumerate(shape):
+        nc = out.shape[axis]
+        u = np.clip((np.arange(n) - 0.5 * (factor - 1)) / factor, 0.0, nc - 1.0)
+        i0 = np.minimum(u.astype(np.int64), max(nc - 2, 0))
+        i1 = np.minimum(i0 + 1, nc - 1)
+        w = (u - i0).astype(out.dtype).reshape((-1,) + (1,) * (out.ndim - axis - 1))
+        lower = np.take(out, i0, axis=axis)
+        out = lower + (np.take(out, i1, axis=axis) - lower) * w
+    return out

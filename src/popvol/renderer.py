@@ -8,6 +8,7 @@ import numpy as np
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, gathered_source
 from .kernels.render import render_kernel
+from .kernels.sampling import block_means, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import solve, voxels_seen
 from .results import Solution
@@ -191,8 +192,11 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     norm = norm.sum(axis=0, dtype=np.float64)
     light = (out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]).astype(np.float32)
     if factor > 1:
-        light = upsample(light, factor, seen_box.shape)
-    light[~seen_box] = 0.0
+        light = upsample(light, factor, seen_box)
+    else:
+        light[~seen_box] = 0.0
+    if light.shape[:3] == seen.shape:
+        return light
     full = np.zeros(seen.shape + (3,), np.float32)
     full[box] = light
     return full
@@ -201,12 +205,13 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
 def occupied_box(mask: np.ndarray, margin: int) -> tuple[slice, slice, slice]:
     """The index box of ``mask``'s true voxels (bool (nx, ny, nz)), ``margin`` voxels wider on
     every side within the grid (a one-voxel box where none is true)."""
-    idx = np.argwhere(mask)
-    if idx.size == 0:
-        return (slice(0, 1),) * 3
-    lo = np.maximum(idx.min(axis=0) - margin, 0)
-    hi = np.minimum(idx.max(axis=0) + 1 + margin, mask.shape)
-    return tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
+    box = []
+    for axis in range(3):
+        hit = np.flatnonzero(mask.any(axis=tuple(a for a in range(3) if a != axis)))
+        if hit.size == 0:
+            return (slice(0, 1),) * 3
+        box.append(slice(int(max(hit[0] - margin, 0)), int(min(hit[-1] + 1 + margin, mask.shape[axis]))))
+    return tuple(box)
 
 
 def crop_bundles(medium, grid, box) -> tuple[tuple, tuple]:
@@ -214,7 +219,8 @@ def crop_bundles(medium, grid, box) -> tuple[tuple, tuple]:
     constants; the origin moves to the box's first voxel)."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     phi, phia, direct, phid, flux, lobe_cap = grid
-    cut = (lambda a: a if a.size <= 1 else np.ascontiguousarray(a[(Ellipsis,) + box]))
+    whole = all(b.stop - b.start == n for b, n in zip(box, density.shape))
+    cut = (lambda a: a if a.size <= 1 or whole else np.ascontiguousarray(a[(Ellipsis,) + box]))
     start = np.array([b.start for b in box], np.float64)
     return ((cut(density), scale, cut(albedo), albedo_rgb, cut(g_grid), origin + start * voxel, voxel, lo, hi,
              blocks, block), tuple(cut(f) for f in (phi, phia, direct, phid, flux)) + (lobe_cap,))
@@ -237,19 +243,12 @@ def gather_factor(medium, resolution: int) -> int:
 
 def block_mean(x: np.ndarray, factor: int) -> np.ndarray:
     """float32: the mean of x (..., nx, ny, nz) over blocks of factor^3 voxels along its last
-    three axes (the blocks at the far edges over the voxels they hold)."""
-    out = np.asarray(x, np.float32)
-    for axis in range(out.ndim - 3, out.ndim):
-        n = out.shape[axis]
-        m = -(-n // factor)
-        if m * factor != n:
-            pad = [(0, 0)] * out.ndim
-            pad[axis] = (0, m * factor - n)
-            out = np.pad(out, pad)
-        out = out.reshape(out.shape[:axis] + (m, factor) + out.shape[axis + 1:]).sum(axis=axis + 1)
-        held = np.minimum(factor, n - factor * np.arange(m)).astype(np.float32)    # voxels per block
-        out /= held.reshape((m,) + (1,) * (out.ndim - axis - 1))
-    return out
+    three axes (the blocks at the far edges over the voxels they hold; kernels/sampling.py)."""
+    n = x.shape[-3:]
+    flat = np.ascontiguousarray(x, np.float32).reshape((-1,) + n)
+    out = np.empty((flat.shape[0],) + tuple(-(-s // factor) for s in n), np.float32)
+    block_means(flat, factor, out)
+    return out.reshape(x.shape[:-3] + out.shape[1:])
 
 
 def coarse_bundles(medium, grid, seen, factor: int) -> tuple[tuple, tuple, np.ndarray]:
@@ -276,18 +275,12 @@ def coarse_bundles(medium, grid, seen, factor: int) -> tuple[tuple, tuple, np.nd
     return coarse_medium, coarse_grid, needed
 
 
-def upsample(coarse: np.ndarray, factor: int, shape: tuple) -> np.ndarray:
-    """(nx, ny, nz, C) from the blocks' values ``coarse`` at their centres: trilinear at the
-    voxel centres, clamped to the edge (separable: one linear interpolation per axis)."""
-    out = coarse
-    for axis, n in enumerate(shape):
-        nc = out.shape[axis]
-        u = np.clip((np.arange(n) - 0.5 * (factor - 1)) / factor, 0.0, nc - 1.0)
-        i0 = np.minimum(u.astype(np.int64), max(nc - 2, 0))
-        i1 = np.minimum(i0 + 1, nc - 1)
-        w = (u - i0).astype(out.dtype).reshape((-1,) + (1,) * (out.ndim - axis - 1))
-        lower = np.take(out, i0, axis=axis)
-        out = lower + (np.take(out, i1, axis=axis) - lower) * w
+def upsample(coarse: np.ndarray, factor: int, needed: np.ndarray) -> np.ndarray:
+    """float32 (nx, ny, nz, C): from the blocks' values ``coarse`` (bx, by, bz, C) at their
+    centres, the trilinear value at the centres of the voxels where ``needed`` (bool (nx, ny,
+    nz)), clamped to the edge; 0 elsewhere (kernels/sampling.py)."""
+    out = np.zeros(needed.shape + coarse.shape[3:], np.float32)
+    upsample_blocks(np.ascontiguousarray(coarse, np.float32), factor, needed, out)
     return out
 
 

@@ -52,21 +52,27 @@ def _voxel(a, s, p, q):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _bilinear(buf, u, v, nu, nv, ch):
-    """buf (nu, nv, 3) channel ch at the continuous index (u, v); 0 outside [-1/2, n - 1/2],
-    clamped to the edge in the outer half cell."""
+def _bilinear_stencil(u, v, nu, nv):
+    """The bilinear stencil at the continuous index (u, v) of an (nu, nv) slice: (inside, i0,
+    i1, j0, j1, fu, fv); outside [-1/2, n - 1/2] the value is 0, in the outer half cell it is
+    clamped to the edge."""
     if u < -0.5 or u > nu - 0.5 or v < -0.5 or v > nv - 0.5:
-        return 0.0
+        return False, 0, 0, 0, 0, 0.0, 0.0
     u = min(max(u, 0.0), nu - 1.0)
     v = min(max(v, 0.0), nv - 1.0)
     i0 = min(int(u), max(nu - 2, 0))
     j0 = min(int(v), max(nv - 2, 0))
-    i1 = min(i0 + 1, nu - 1)
-    j1 = min(j0 + 1, nv - 1)
-    fu = u - i0
-    fv = v - j0
-    return ((1 - fu) * ((1 - fv) * buf[i0, j0, ch] + fv * buf[i0, j1, ch])
-            + fu * ((1 - fv) * buf[i1, j0, ch] + fv * buf[i1, j1, ch]))
+    return True, i0, min(i0 + 1, nu - 1), j0, min(j0 + 1, nv - 1), u - i0, v - j0
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _bilinear(buf, stencil, k, ch):
+    """buf (3, nu, nv, 3) quantity k, channel ch on the stencil of :func:`_bilinear_stencil`."""
+    inside, i0, i1, j0, j1, fu, fv = stencil
+    if not inside:
+        return 0.0
+    return ((1 - fu) * ((1 - fv) * buf[k, i0, j0, ch] + fv * buf[k, i0, j1, ch])
+            + fu * ((1 - fv) * buf[k, i1, j0, ch] + fv * buf[k, i1, j1, ch]))
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -153,6 +159,7 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     n = density.shape
     n_lobes = lobes.shape[1]
+    grey = scale[0] == scale[1] and scale[1] == scale[2]
     w0, w1, w2 = w[0], w[1], w[2]
     a = 0
     if abs(w1) > abs(w0) and abs(w1) >= abs(w2):
@@ -193,21 +200,24 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                         j1 += l1 * f
                         j2 += l2 * f
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[ix, iy, iz]
+                stencil = _bilinear_stencil(p + ob, q + oc, nb_, nc_)
+                path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
+                t = wgt = 0.0
                 for ch in range(3):
                     sig = scale[ch] * rho
                     qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
-                    if step == 0:               # from the grid's face: half a slice of this voxel
-                        l_up, q_up, s_up, path = 0.0, qv, sig, 0.5 * ell
+                    if step == 0:
+                        l_up, q_up = 0.0, qv
                     else:
-                        l_up = _bilinear(prev[0], p + ob, q + oc, nb_, nc_, ch)
-                        q_up = _bilinear(prev[1], p + ob, q + oc, nb_, nc_, ch)
-                        s_up = _bilinear(prev[2], p + ob, q + oc, nb_, nc_, ch)
-                        path = ell
-                    sbar = 0.5 * (s_up + sig)
-                    tau = sbar * path
-                    t = math.exp(-tau)
-                    # (1 - T) / sigma: the segment's emission weight, -> path as sigma -> 0
-                    wgt = path * (1.0 - tau * (0.5 - tau / 6.0)) if tau < 1e-4 else (1.0 - t) / sbar
+                        l_up = _bilinear(prev, stencil, 0, ch)
+                        q_up = _bilinear(prev, stencil, 1, ch)
+                    if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
+                        s_up = sig if step == 0 else _bilinear(prev, stencil, 2, ch)
+                        sbar = 0.5 * (s_up + sig)
+                        tau = sbar * path
+                        t = math.exp(-tau)
+                        # (1 - T) / sigma: the segment's emission weight, -> path as sigma -> 0
+                        wgt = path * (1.0 - tau * (0.5 - tau / 6.0)) if tau < 1e-4 else (1.0 - t) / sbar
                     cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
                     cur[1, p, q, ch] = qv
                     cur[2, p, q, ch] = sig

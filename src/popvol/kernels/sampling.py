@@ -115,3 +115,53 @@ def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, nee
                                        (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5, s)
                 for m in range(len(fields)):
                     outs[m][x, y, z] = interpolate(fields[m], corners)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def block_means(x, factor, out):
+    """out float32 (m, bx, by, bz): the mean of x (m, nx, ny, nz) over blocks of factor^3
+    voxels, b = ceil(n / factor) per axis; a block at a far edge averages the voxels it holds.
+    NumPy twin: tests/twins.py (block_mean)."""
+    m, nx, ny, nz = x.shape
+    bx, by, bz = out.shape[1], out.shape[2], out.shape[3]
+    for t in nb.prange(m * bx):
+        k = t // bx
+        i = t % bx
+        a0 = i * factor
+        a1 = min(a0 + factor, nx)
+        for j in range(by):
+            b0 = j * factor
+            b1 = min(b0 + factor, ny)
+            for l in range(bz):
+                c0 = l * factor
+                c1 = min(c0 + factor, nz)
+                s = 0.0
+                for a in range(a0, a1):
+                    for b in range(b0, b1):
+                        for c in range(c0, c1):
+                            s += x[k, a, b, c]
+                out[k, i, j, l] = s / ((a1 - a0) * (b1 - b0) * (c1 - c0))
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def upsample_blocks(coarse, factor, needed, out):
+    """out float32 (nx, ny, nz, C) at the voxels where ``needed``: the trilinear value of
+    ``coarse`` (bx, by, bz, C), the values at the centres of blocks of factor^3 voxels (block b's
+    centre at voxel index factor b + (factor - 1) / 2), clamped to the edge; other voxels are
+    not written. NumPy twin: tests/twins.py (upsample)."""
+    nx, ny, nz = needed.shape
+    half = 0.5 * (factor - 1)
+    for i in nb.prange(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if not needed[i, j, k]:
+                    continue
+                corners = cell_corners((i - half) / factor, (j - half) / factor, (k - half) / factor,
+                                       coarse.shape)
+                i0, i1, j0, j1, k0, k1, fx, fy, fz = corners
+                for ch in range(coarse.shape[3]):
+                    c00 = coarse[i0, j0, k0, ch] * (1 - fz) + coarse[i0, j0, k1, ch] * fz
+                    c01 = coarse[i0, j1, k0, ch] * (1 - fz) + coarse[i0, j1, k1, ch] * fz
+                    c10 = coarse[i1, j0, k0, ch] * (1 - fz) + coarse[i1, j0, k1, ch] * fz
+                    c11 = coarse[i1, j1, k0, ch] * (1 - fz) + coarse[i1, j1, k1, ch] * fz
+                    out[i, j, k, ch] = (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx

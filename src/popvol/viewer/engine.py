@@ -81,14 +81,13 @@ class Frame:
 
 
 def view_method(method, resolution: int, **changes):
-    """``method`` at ``resolution`` cells (never more than its own): the diffusion and
-    environment grids shrink by the same factor, so their ratios to the domain stay the scene's."""
+    """``method`` at ``resolution`` cells (never more than its own): the diffusion, environment
+    and gather grids shrink by the same factor, so their ratios to the domain stay the scene's."""
     f = min(1.0, resolution / method.resolution)
     out = replace(method, resolution=max(2, round(method.resolution * f)), **changes)
-    if method.diffusion_resolution:
-        out.diffusion_resolution = max(2, round(method.diffusion_resolution * f))
-    if method.environment_resolution:
-        out.environment_resolution = max(2, round(method.environment_resolution * f))
+    for name in ("diffusion_resolution", "environment_resolution", "gather_resolution"):
+        if getattr(method, name):
+            setattr(out, name, max(2, round(getattr(method, name) * f)))
     return out
 
 
