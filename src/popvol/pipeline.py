@@ -247,6 +247,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                     directions=np.array([l.render_direction for l in lights], np.float64).reshape(-1, 3),
                     positions=np.array([l.render_position for l in lights], np.float64).reshape(-1, 3),
                     is_point=np.array([l.fields_in_domain for l in lights], np.bool_),
+                    unscattered=np.array([l.unscattered for l in lights], np.bool_),
                     irradiance=np.array([l.power for l in lights], np.float64).reshape(-1, 3),
                     points=point_fields(sols, n, n_ch), phid=phid, flux=flux, seconds=seconds, key=key,
                     lobe_cap=lobe_cap)

@@ -89,11 +89,15 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
               int(cam.height))
     gathering = m.gather > 0 and not solution.single
     if gathering:
-        # the scattered light toward the camera gathered on the grid; the samples add the
-        # single scattering (docs/METHOD.md, "Gathered last bounce")
-        gathered = gather(medium, lights, field_bundles(solution), np.asarray(cam.origin, np.float64), seen,
-                          m.gather, gather_factor(med, m.gather_resolution), gather_cap(cam))
-        solution = solution.single_scattering()
+        # the scattered light toward the camera gathered on the grid from the lights with an
+        # unscattered part; the samples add their single scattering and all the light of the
+        # others (an environment's), whose first scattering the gather cannot make (docs/METHOD.md,
+        # "Gathered last bounce")
+        own = solution.unscattered
+        gathered_lights = lights[:2] + (lights[2] * own[:, None],) + lights[3:]
+        gathered = gather(medium, gathered_lights, field_bundles(solution), np.asarray(cam.origin, np.float64),
+                          seen, m.gather, gather_factor(med, m.gather_resolution), gather_cap(cam))
+        solution = solution.single_scattering(keep=~own)
         combined = True
     grid, spherical = field_bundles(solution)
     source = np.zeros((0, 0, 0, 3), np.float32)

@@ -88,6 +88,12 @@ class Light:
     from_environment: bool = False
     source: str = "<light>"
 
+    @property
+    def unscattered(self) -> bool:
+        """Whether the walk keeps the light's unscattered part apart (its ``direct`` field: a
+        collimated sun, a point light), so that the renderer can scatter it once itself."""
+        return True
+
     @classmethod
     def from_table(cls, table: dict, name: str, src: str) -> "Light":
         """The light of a TOML table (already checked for unknown keys)."""

@@ -63,6 +63,10 @@ class DirectionalLight(Light):
     def render_direction(self) -> np.ndarray:
         return self.direction
 
+    @property
+    def unscattered(self) -> bool:
+        return self.a0 == 1.0           # a broad lobe (an environment's light) has no direct field
+
     def key(self) -> tuple:
         # rounded: normalising an already unit direction again may change its last bit
         return ("directional", tuple(np.round(self.direction, 12)), self.a0, self.from_environment)
