@@ -48,7 +48,8 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
     <= 1e-4, docs/METHOD.md); ``skip``: jump over empty blocks of the medium (the image is bitwise the same).
     With ``method.gather`` > 0 the combined source is always used (it holds the gathered light),
     except for a solution of the unscattered light alone (``Solution.single_scattering()``),
-    which is rendered as it is.
+    which is rendered as it is, and where no light has an unscattered part (an environment
+    alone), which is lit from the lobes.
     """
     if solution is None:
         solution = solve(scene)
@@ -87,7 +88,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
               np.ascontiguousarray(solution.positions, np.float64))
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
-    gathering = m.gather > 0 and not solution.single
+    gathering = m.gather > 0 and not solution.single and bool(solution.unscattered.any())
     if gathering:
         # the scattered light toward the camera gathered on the grid from the lights with an
         # unscattered part; the samples add their single scattering and all the light of the
