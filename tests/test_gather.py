@@ -1,6 +1,8 @@
 """The gathered last scattering (method.gather, kernels/gather.py): the kernel against its
 NumPy twin, and the front-lit slab's reflection against the plane-parallel Monte Carlo of
 tests/montecarlo.py, where lighting the camera from the fields' lobes is 18-40 % too bright."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -243,6 +245,20 @@ def test_environment_lights_are_lit_from_their_lobes():
     scene = popvol.scene_from_dict({**base, "lights": [SUN, sky]})
     sol = popvol.solve(scene)
     assert list(sol.unscattered) == [True] + [False] * (len(sol.unscattered) - 1)
-    single = sol.single_scattering(keep=~sol.unscattered)
-    np.testing.assert_array_equal(single.phi[1:], sol.phi[1:])
-    np.testing.assert_array_equal(single.phi[0], sol.direct[0])
+    # the image is the sun's gathered light plus the sky's lit from its lobes (as without the
+    # gather), over the background that each render holds once
+    dark = (lambda l: dataclasses.replace(l, irradiance=np.zeros(3)))
+    sun_only = sol.relit([scene.lights[0]] + [dark(l) for l in scene.lights[1:]])
+    sky_only = sol.relit([dark(scene.lights[0])] + scene.lights[1:])
+    none = sol.relit([dark(l) for l in scene.lights])
+    both = popvol.render(scene, sol, jitter=False)
+    sun = popvol.render(scene, sun_only, jitter=False)
+    background = popvol.render(scene, none, jitter=False)
+    sky = popvol.render(apply_overrides(scene, gather=0), sky_only, jitter=False)
+    assert (sun - background).max() > 0 and (sky - background).max() > 0
+    # (not bitwise: without the gather the samples near the camera are lit light by light, which
+    # on this close-up moves the sky's image by relMSE 7e-4 and x1.0003; the lost first scattering
+    # of an environment made the cloud under an HDR map x0.87)
+    from popvol import metrics
+    assert metrics.relmse(both + background, sun + sky, metrics.luminance_mask(sun + sky)) < 2e-3
+    assert metrics.brightness_ratio(both + background, sun + sky) == pytest.approx(1.0, abs=2e-3)

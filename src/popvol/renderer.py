@@ -95,10 +95,16 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         # others (an environment's), whose first scattering the gather cannot make (docs/METHOD.md,
         # "Gathered last bounce")
         own = solution.unscattered
-        gathered_lights = lights[:2] + (lights[2] * own[:, None],) + lights[3:]
-        gathered = gather(medium, gathered_lights, field_bundles(solution), np.asarray(cam.origin, np.float64),
-                          seen, m.gather, gather_factor(med, m.gather_resolution), gather_cap(cam))
-        solution = solution.single_scattering(keep=~own)
+        grid, spherical = field_bundles(solution)
+        pick = (lambda a: a[own] if len(a) == len(own) else a)          # the gathered lights' rows
+        eye = np.asarray(cam.origin, np.float64)
+        gathered = gather(medium, tuple(pick(a) for a in lights),
+                          (tuple(pick(a) for a in grid), (spherical[0],) + tuple(pick(a) for a in spherical[1:])),
+                          eye, seen, m.gather, gather_factor(med, m.gather_resolution), gather_cap(cam))
+        if not own.all():                 # the others' light, all of it, from their lobes
+            others = lights[:2] + (lights[2] * ~own[:, None],) + lights[3:]
+            in_scattering_source(medium, others, grid, spherical, eye, seen, gathered)
+        solution = solution.single_scattering()
         combined = True
     grid, spherical = field_bundles(solution)
     source = np.zeros((0, 0, 0, 3), np.float32)

@@ -191,26 +191,18 @@ class Solution:
         power = np.array([l.power for l in lights], np.float64).reshape(-1, 3)
         return dataclasses.replace(self, irradiance=power)
 
-    def single_scattering(self, keep=None) -> "Solution":
+    def single_scattering(self) -> "Solution":
         """The same scene lit by its unscattered light alone: each light's fluence is its
         direct part (phi = phia = phi_dir, a lobe of anisotropy 1 along the light's direction,
         which the renderer lights with f_hg(mu; g): docs/METHOD.md Eq. 23), with no diffuse
         light. Rendered, it is the light that reaches the camera after exactly one scattering
         event, what a path tracer's paths of that length give (Mitsuba volpath ``max_depth =
         2``), whatever ``method.gather`` says. Environment lights (a0 < 1) have no direct part,
-        so they give nothing here. ``keep``: bool (n_lights,), lights (not point lights) that
-        keep all their light instead."""
+        so they give nothing here."""
         fields = self.points.fields.copy()
         fields[0] = fields[1] = fields[2]
-        if keep is None or not np.any(keep):
-            phi, phia = self.direct, self.direct
-            phid, flux = _empty(0, *self.phid.shape[1:]), _empty(0, *self.flux.shape[1:])
-        else:
-            k = np.asarray(keep, bool).reshape((-1,) + (1,) * (self.phi.ndim - 1))
-            phi, phia = np.where(k, self.phi, self.direct), np.where(k, self.phia, self.direct)
-            phid = self.phid if self.phid.shape[0] == 0 else np.where(k, self.phid, 0.0).astype(np.float32)
-            flux = self.flux if self.flux.shape[0] == 0 else np.where(k[..., None], self.flux, 0.0).astype(np.float32)
-        return dataclasses.replace(self, phi=phi, phia=phia, phid=phid, flux=flux,
+        return dataclasses.replace(self, phi=self.direct, phia=self.direct,
+                                   phid=_empty(0, *self.phid.shape[1:]), flux=_empty(0, *self.flux.shape[1:]),
                                    points=dataclasses.replace(self.points, fields=fields), single=True)
 
     @property
