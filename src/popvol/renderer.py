@@ -103,7 +103,9 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
                           eye, seen, m.gather, gather_factor(med, m.gather_resolution), gather_cap(cam))
         if not own.all():                 # the others' light, all of it, from their lobes
             others = lights[:2] + (lights[2] * ~own[:, None],) + lights[3:]
-            in_scattering_source(medium, others, grid, spherical, eye, seen, gathered)
+            lobes = np.zeros_like(gathered)
+            in_scattering_source(medium, others, grid, spherical, eye, seen, lobes)
+            gathered += lobes
         solution = solution.single_scattering()
         combined = True
     grid, spherical = field_bundles(solution)
