@@ -1,5 +1,5 @@
 """Numba kernel: the last scattering gathered at render time (docs/METHOD.md, "Gathered last
-bounce"; experimental.gather = N directions).
+bounce"; method.gather = N directions).
 
 The combined source (kernels/source.py) lights a voxel toward the camera from the fields' own
 angular model, one lobe per light and cell. Here the light arriving at the voxel is gathered
