@@ -96,11 +96,9 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         # "Gathered last bounce")
         own = solution.unscattered
         grid, spherical = field_bundles(solution)
-        pick = (lambda a: a[own] if len(a) == len(own) else a)          # the gathered lights' rows
         eye = np.asarray(cam.origin, np.float64)
-        gathered = gather(medium, tuple(pick(a) for a in lights),
-                          (tuple(pick(a) for a in grid), (spherical[0],) + tuple(pick(a) for a in spherical[1:])),
-                          eye, seen, m.gather, gather_factor(med, m.gather_resolution), gather_cap(cam))
+        gathered = gather(medium, *only_lights(own, lights, grid, spherical), eye, seen, m.gather,
+                          gather_factor(med, m.gather_resolution), gather_cap(cam))
         if not own.all():                 # the others' light, all of it, from their lobes
             others = lights[:2] + (lights[2] * ~own[:, None],) + lights[3:]
             lobes = np.zeros_like(gathered)
@@ -133,6 +131,18 @@ def field_bundles(solution: Solution) -> tuple[tuple, tuple]:
             np.ascontiguousarray(solution.lobe_cap, np.float64))
     pts = solution.points
     return grid, (pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full)
+
+
+def only_lights(keep: np.ndarray, lights: tuple, grid: tuple, spherical: tuple) -> tuple[tuple, tuple]:
+    """The kernels' lights bundle and (grid, spherical) bundles of the lights where ``keep``
+    (bool (n_lights,)): each per-light array's rows (the diffusion fields' only if there are
+    any; the point lights' flat field array as it is, its offsets picked)."""
+    phi, phia, direct, phid, flux, lobe_cap = grid
+    fields, offset, shape, params, frame, full = spherical
+    rows = (lambda a: a[keep] if a.shape[0] else a)
+    return (tuple(a[keep] for a in lights),
+            ((phi[keep], phia[keep], direct[keep], rows(phid), rows(flux), lobe_cap[keep]),
+             (fields, offset[keep], shape[keep], params[keep], frame[keep], full[keep])))
 
 
 def gather_directions(n: int, axis=None, cap: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
