@@ -284,17 +284,9 @@ def coarse_bundles(medium, grid, seen, factor: int) -> tuple[tuple, tuple, np.nd
     coarse_medium = (block_mean(density, factor), scale, const(albedo), albedo_rgb, const(g_grid),
                      origin + 0.5 * (factor - 1) * voxel, voxel * factor, lo, hi, blocks, block)
     coarse_grid = tuple(block_mean(f, factor) if f.size > 1 else f for f in (phi, phia, direct, phid, flux)) + (lobe_cap,)
-    needed = block_mean(seen.astype(np.float32), factor) > 0
-    grown = needed.copy()
-    for axis in range(3):                 # and the blocks next to them (the trilinear stencil)
-        n = needed.shape[axis]
-        if n > 1:
-            lower = [slice(None)] * 3
-            upper = [slice(None)] * 3
-            lower[axis], upper[axis] = slice(0, n - 1), slice(1, n)
-            grown[tuple(lower)] |= needed[tuple(upper)]
-            grown[tuple(upper)] |= needed[tuple(lower)]
-        needed = grown.copy()
+    # the blocks holding a seen voxel and their 26 neighbours (the trilinear stencil): the same
+    # one-block dilation voxels_seen makes of a density
+    needed = voxels_seen(block_mean(seen.astype(np.float32), factor))
     return coarse_medium, coarse_grid, needed
 
 
