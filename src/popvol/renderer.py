@@ -101,9 +101,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
                           gather_factor(med, m.gather_resolution), gather_cap(cam))
         if not own.all():                 # the others' light, all of it, from their lobes
             others = lights[:2] + (lights[2] * ~own[:, None],) + lights[3:]
-            lobes = np.zeros_like(gathered)
-            in_scattering_source(medium, others, grid, spherical, eye, seen, lobes)
-            gathered += lobes
+            in_scattering_source(medium, others, grid, spherical, eye, seen, gathered)
         solution = solution.single_scattering()
         combined = True
     grid, spherical = field_bundles(solution)
@@ -112,14 +110,14 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     if combined is None:
         samples = cam.width * cam.height * m.spp * grid_lit
         combined = samples * COMBINED_VOXELS_PER_SAMPLE >= int(seen.sum())
-    if combined and grid_lit > 0:
+    if gathering:
+        source = gathered                 # every sample reads the gathered light from the grid
+    elif combined and grid_lit > 0:
         source = np.zeros(med.density.shape + (3,), np.float32)
+    if combined and grid_lit > 0:         # the single scattering (gathering), or all of it
         in_scattering_source(medium, lights, grid, spherical, np.asarray(cam.origin, np.float64),
                              seen, source)
-    near = float(NEAR_VOXELS * med.voxel_size.min())
-    if gathering:
-        source = source + gathered if source.size else gathered
-        near = 0.0                        # every sample reads the gathered light from the grid
+    near = 0.0 if gathering else float(NEAR_VOXELS * med.voxel_size.min())
     view = (source, near)
     march = (float(m.step * med.voxel_size.min()), int(m.spp), int(m.seed), bool(jitter))
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
@@ -139,6 +137,8 @@ def only_lights(keep: np.ndarray, lights: tuple, grid: tuple, spherical: tuple) 
     any; the point lights' flat field array as it is, its offsets picked)."""
     phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
+    if keep.all():
+        return lights, (grid, spherical)
     rows = (lambda a: a[keep] if a.shape[0] else a)
     return (tuple(a[keep] for a in lights),
             ((phi[keep], phia[keep], direct[keep], rows(phid), rows(flux), lobe_cap[keep]),

@@ -6,6 +6,7 @@ the edge value in the outer half cell (Mitsuba's gridvolume does the same); outs
 Grids of size 1 along an axis (constants stored as (1, 1, 1)) are constant along it.
 """
 import numba as nb
+import numpy as np
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -124,23 +125,24 @@ def block_means(x, factor, out):
     NumPy twin: tests/twins.py (block_mean)."""
     m, nx, ny, nz = x.shape
     bx, by, bz = out.shape[1], out.shape[2], out.shape[3]
-    for t in nb.prange(m * bx):
+    for t in nb.prange(m * bx):         # one slab of blocks each, its voxels read in memory order
         k = t // bx
         i = t % bx
         a0 = i * factor
         a1 = min(a0 + factor, nx)
+        acc = np.zeros((by, bz))
+        for a in range(a0, a1):
+            for b in range(ny):
+                j = b // factor
+                for l in range(bz):
+                    s = 0.0
+                    for c in range(l * factor, min(l * factor + factor, nz)):
+                        s += x[k, a, b, c]
+                    acc[j, l] += s
         for j in range(by):
-            b0 = j * factor
-            b1 = min(b0 + factor, ny)
+            nb_ = min(factor, ny - j * factor)
             for l in range(bz):
-                c0 = l * factor
-                c1 = min(c0 + factor, nz)
-                s = 0.0
-                for a in range(a0, a1):
-                    for b in range(b0, b1):
-                        for c in range(c0, c1):
-                            s += x[k, a, b, c]
-                out[k, i, j, l] = s / ((a1 - a0) * (b1 - b0) * (c1 - c0))
+                out[k, i, j, l] = acc[j, l] / ((a1 - a0) * nb_ * min(factor, nz - l * factor))
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)

@@ -21,10 +21,10 @@ from .render import light_in_scattering
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
-    """Fill ``out`` float32 (nx, ny, nz, 3) at the voxels where ``needed`` (bool (nx, ny, nz))
-    with L_s / sigma_s toward the camera at ``eye`` (float64 (3,)) of every term lit on the
-    medium's grid (module docstring); other voxels are not written (allocate ``out`` with
-    zeros). medium, lights, grid, spherical: the render kernel's bundles (render_kernel); the
+    """Add to ``out`` float32 (nx, ny, nz, 3) at the voxels where ``needed`` (bool (nx, ny, nz))
+    L_s / sigma_s toward the camera at ``eye`` (float64 (3,)) of every term lit on the medium's
+    grid (module docstring); other voxels are not touched (allocate ``out`` with zeros, or pass
+    a source to add to). medium, lights, grid, spherical: the render kernel's bundles (render_kernel); the
     voxel's own g is the phase's anisotropy."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     is_point, direction, power, position = lights
@@ -58,6 +58,6 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
                     s0 += e0
                     s1 += e1
                     s2 += e2
-                out[i, j, k, 0] = s0
-                out[i, j, k, 1] = s1
-                out[i, j, k, 2] = s2
+                out[i, j, k, 0] += s0
+                out[i, j, k, 1] += s1
+                out[i, j, k, 2] += s2
