@@ -23,7 +23,7 @@ ws_client = pytest.importorskip("websockets.sync.client", reason="websockets is 
 import popvol
 from popvol.errors import PopvolError
 from popvol.viewer import settings as S
-from popvol.viewer.engine import DRAFT, FULL, Engine
+from popvol.viewer.engine import DRAFT, FULL, PREVIEW, Engine
 from popvol.viewer.server import running
 
 SMALL_SCENE = """
@@ -215,6 +215,27 @@ def test_drafts_are_smaller_and_use_the_full_solution_when_it_exists(engine):
     assert f.propagated and f.resolution == 24 and (f.width, f.height) == (48, 28)
     d2 = engine.frame(replace(s, camera_azimuth=s.camera_azimuth + 5), DRAFT)
     assert not d2.propagated and d2.resolution == 24 and engine.solves == solves + 2
+
+
+def test_the_preview_is_the_full_view_without_the_gathered_last_bounce(engine, scene_path):
+    """draft -> preview -> full: the preview propagates at the view's cells and renders at its
+    size with gather = 0 (the image popvol.render makes of that scene); the full frame then
+    renders from the preview's solution, with the gather."""
+    assert engine.method.gather > 0
+    assert [engine.next_level(x) for x in (DRAFT, PREVIEW, FULL)] == [PREVIEW, FULL, None]
+    s = replace(engine.initial, sun_azimuth=engine.initial.sun_azimuth + 33)
+    solves = engine.solves
+    p = engine.frame(s, PREVIEW)
+    assert p.propagated and p.resolution == 24 and (p.width, p.height) == (48, 28)
+    scene = engine.scene_for(s, PREVIEW)
+    assert scene.method.gather == 0 and engine.scene_for(s, FULL).method.gather == engine.method.gather
+    np.testing.assert_allclose(popvol.render(scene, popvol.solve(scene)), p.image, rtol=1e-5, atol=1e-6)
+    f = engine.frame(s, FULL)
+    assert not f.propagated and engine.solves == solves + 1
+    assert not np.allclose(f.image, p.image, rtol=1e-3)          # the gather changes the image
+    no_gather = Engine(scene_path, resolution=24, draft_resolution=12)
+    no_gather.method = replace(no_gather.method, gather=0)
+    assert no_gather.next_level(DRAFT) == FULL
 
 
 def test_saved_toml_renders_the_view_exactly(engine, tmp_path, monkeypatch):
@@ -496,7 +517,9 @@ def test_burst_of_camera_messages_renders_the_latest_only(server, engine):
         assert engine.solves == solves                               # camera only: no propagation
         last = frames[-1]
         assert last["version"] == 20 and last["settings"]["camera_azimuth"] == az0 + 20
-        assert all(f["level"] == DRAFT for f in frames[:-1])
+        # drafts while input arrives, then the preview (no gathered last bounce) and the full frame
+        assert [f["level"] for f in frames[-2:]] == [PREVIEW, FULL] and frames[-2]["version"] == 20
+        assert all(f["level"] == DRAFT for f in frames[:-2])
         assert [f["version"] for f in frames] == sorted(f["version"] for f in frames)
         png = base64.b64decode(last["png"])
         assert png[:8] == b"\x89PNG\r\n\x1a\n"
@@ -511,8 +534,10 @@ def test_malformed_messages_get_an_error_and_the_server_goes_on(server):
         ws.send(b"\x00binary")
         assert "binary" in receive(ws, "error")["message"]
         ws.send(json.dumps({"type": "set", "settings": {"g": 0.2}}))
-        f = receive(ws, "frame", level=FULL)
+        f = receive(ws, "frame", level=PREVIEW)                 # propagated at the view's cells ...
         assert f["settings"]["g"] == 0.2 and f["propagated"]
+        f = receive(ws, "frame", level=FULL)                    # ... and the full frame reuses it
+        assert f["settings"]["g"] == 0.2 and not f["propagated"]
 
 
 def test_save_over_the_websocket(server, engine):
@@ -576,9 +601,11 @@ def test_scrubbing_frames_gives_drafts_then_the_full_frame(seq_server, seq_engin
             frames.append(m)
             if m["level"] == FULL:
                 break
-        assert all(f["level"] == DRAFT for f in frames[:-1]) and len(frames) >= 2
-        assert all((f["width"], f["height"]) == (24, 14) for f in frames[:-1])          # half the pixels
-        assert all(f["resolution"] in (12, 24) for f in frames[:-1])
+        assert frames[-2]["level"] == PREVIEW and (frames[-2]["width"], frames[-2]["height"]) == (48, 28)
+        drafts = frames[:-2]
+        assert all(f["level"] == DRAFT for f in drafts) and len(drafts) >= 1
+        assert all((f["width"], f["height"]) == (24, 14) for f in drafts)               # half the pixels
+        assert all(f["resolution"] in (12, 24) for f in drafts)
         last = frames[-1]
         assert last["version"] == len(scrub) and last["frame"] == 3 and (last["width"], last["height"]) == (48, 28)
         assert seq_engine.renders - renders == len(frames) < len(scrub)

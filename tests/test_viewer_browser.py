@@ -102,10 +102,16 @@ def test_dragging_the_sun_changes_image_and_readout(page, viewer):
     version = page.evaluate("() => popvolView.lastFrame.version")
     solves = engine.solves
     drag(page, "#sky", (0.5, 0.8), (0.85, 0.4))
+    # the preview propagates at the view's 24 cells; the full frame then reuses its solution
+    page.wait_for_function(f"() => popvolView.lastFrame.level === 'preview' && popvolView.lastFrame.version > {version}",
+                           timeout=60_000)
+    preview_text = page.inner_text("#readout")
+    assert re.search(r"preview 96×54 .*\npropagation \d+ ms \(24 cells\)", preview_text), preview_text
+    assert "preview (gathering the last bounce)" in page.inner_text("#status")
     wait_full_frame(page, after=version + 1)
     after_text = page.inner_text("#readout")
     assert after_text != before_text
-    assert re.search(r"propagation \d+ ms \(24 cells\)", after_text), after_text
+    assert re.search(r"propagation 0 ms \(reused\)", after_text), after_text
     assert re.search(r"rendering \d+ ms", after_text)
     assert engine.solves > solves
     assert page.evaluate("() => popvolView.lastFrame.settings.sun_azimuth") != before_sun

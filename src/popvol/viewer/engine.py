@@ -7,10 +7,13 @@
 - A sun or medium change propagates again; ``popvol.solve(reuse=...)`` copies
   the domains of lights that did not change from the previous solution.
 
-Two levels of quality: "draft" (while the user drags: half the pixels per axis, a coarser
-ray-marching step, no gathered last bounce, and, if no full solution is at hand, a coarser
-propagation grid) and "full"
-(the view's own method and size, what Save writes and ``popvol render`` reproduces).
+Three levels of quality, each refining the one before once input stops (:meth:`Engine.next_level`):
+- "draft" while the user drags: half the pixels per axis, a coarser ray-marching step, no
+  gathered last bounce, and, if no full solution is at hand, a coarser propagation grid;
+- "preview": the view's own size and propagation, without the gathered last bounce (skipped
+  where the method does not gather): a sun move fully propagated and shown at once;
+- "full": the view's own method and size, gathered last bounce included: what Save writes and
+  ``popvol render`` reproduces. It renders from the preview's solution.
 
 A sequence (docs/SCENE.md, "Sequences") adds the ``frame`` setting: each frame's scene (its
 medium, keyframed lights and camera) is loaded by :mod:`popvol.sequence` and the last few are
@@ -44,7 +47,7 @@ from ..scene import DEMO_SCENE, load_scene
 from ..sequence import frames_text, load_sequence
 from . import settings as S
 
-DRAFT, FULL = "draft", "full"
+DRAFT, PREVIEW, FULL = "draft", "preview", "full"
 MAX_SOLUTIONS = 4                  # solutions kept for returning to earlier settings ...
 MAX_CACHE_BYTES = 512 * 2**20      # ... as long as their fields fit in this many bytes
 MAX_FRAMES = 8                     # frames' scenes (loaded media) kept for scrubbing back ...
@@ -122,8 +125,9 @@ class Engine:
         self.method = view_method(self.base.method, resolution)
         self.draft_method = view_method(self.base.method, min(draft_resolution, self.method.resolution),
                                         spp=1, step=min(16.0, self.base.method.step * draft_step), gather=0)
+        self.preview_method = replace(self.method, gather=0)
         cam = self.base.camera
-        self.size = {FULL: (cam.width, cam.height),
+        self.size = {FULL: (cam.width, cam.height), PREVIEW: (cam.width, cam.height),
                      DRAFT: (max(1, round(cam.width * draft_scale)), max(1, round(cam.height * draft_scale)))}
         self.exposure_auto = self.base.method.exposure == "auto"
         self.tone = self.base.method.tone
@@ -237,7 +241,7 @@ class Engine:
         base, token = self.frame_scene(settings.frame)
         w, h = self.size[level]
         values = S.scene_values(base, settings, w, h)
-        method = self.method if level == FULL else self.draft_method
+        method = {FULL: self.method, PREVIEW: self.preview_method, DRAFT: self.draft_method}[level]
         exposure = "auto" if self.exposure_auto else settings.exposure
         medium = self._medium(base.medium, token, values)
         return S.build_scene(base, values, medium, replace(method, exposure=exposure)), token
@@ -257,6 +261,13 @@ class Engine:
                 return settings.exposure + stops
             self._stops = stops
         return settings.exposure + self._stops
+
+    def next_level(self, level: str) -> str | None:
+        """The level that refines a frame at ``level`` once input stops (None after "full"):
+        draft -> preview -> full, or draft -> full where the view's method does not gather."""
+        if level == DRAFT:
+            return PREVIEW if self.method.gather > 0 else FULL
+        return FULL if level == PREVIEW else None
 
     def frame(self, settings: S.Settings, level: str = FULL) -> Frame:
         """Render ``settings`` at ``level``, propagating only if no valid solution is at hand.
@@ -296,7 +307,7 @@ class Engine:
         the sun, and every light's key (keyframed lights differ between frames)."""
         pkey = (token, settings.propagation_key(), tuple(light.key() for light in scene.lights))
         full_key = (pkey, self.method.resolution)
-        keys = [full_key] if level == FULL else [full_key, (pkey, self.draft_method.resolution)]
+        keys = [full_key] if level != DRAFT else [full_key, (pkey, self.draft_method.resolution)]
         for key in keys:
             if key in self._solutions:
                 self._solutions.move_to_end(key)

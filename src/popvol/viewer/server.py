@@ -8,15 +8,16 @@ page -> server
     {"type": "save"}                                            save the full view (PNG + TOML)
 server -> page
     {"type": "init", "settings": {...}, "ranges": {...}, "frames": {...} | null, "follows": [...], ...}
-    {"type": "frame", "png": base64, "level": "draft"|"full", "version": n, "frame": n | null,
+    {"type": "frame", "png": base64, "level": "draft"|"preview"|"full", "version": n, "frame": n | null,
      "follows": [...], "seconds": {...}, ...}
     {"type": "saved", "png": path, "toml": path}
     {"type": "error", "message": "..."}                        a bad message; the server goes on
 
 Latest request wins: each page has one pending-request slot, overwritten by every "set"; one
 worker thread (shared by all pages) renders. While messages arrive, frames are drafts; once
-none has arrived for ``refine_delay`` seconds after a draft, the same settings are rendered at
-full quality. A burst of messages therefore costs one frame per render time, never a queue.
+none has arrived for ``refine_delay`` seconds after a frame that is not full, the same settings
+are rendered at the next level (``Engine.next_level``: draft -> preview -> full). A burst of
+messages therefore costs one frame per render time, never a queue.
 
 In a sequence, a frame change resets the settings the keyframes drive (``Engine.follows``: the
 camera's orbit, the sun's angles) to the new frame's own, unless the same message sets them;
@@ -110,7 +111,7 @@ class Session:
     async def render_loop(self):
         """Take the latest request, render it on the worker, send it; refine after a pause."""
         loop = asyncio.get_running_loop()
-        refine = None                       # the draft request to refine once input stops
+        refine = None                       # the request to refine once input stops
         while True:
             if self.slot is None and self.save_wanted is None:
                 self.wake.clear()
@@ -121,7 +122,8 @@ class Session:
                         await asyncio.wait_for(self.wake.wait(), self.refine_delay)
                     except TimeoutError:
                         if refine.version == self.version:
-                            self.slot = Request(refine.version, refine.settings, FULL)
+                            self.slot = Request(refine.version, refine.settings,
+                                                self.engine.next_level(refine.level))
                         refine = None
                 continue
             if self.save_wanted is not None:
@@ -144,7 +146,7 @@ class Session:
                 continue
             follows = [k for k in self.engine.follows if getattr(req.settings, k) is None]
             await self.ws.send_json(frame_message(frame, req.version, self.engine, follows))
-            refine = req if req.level == DRAFT else None
+            refine = req if self.engine.next_level(req.level) else None
 
     async def send_error(self, message: str):
         from starlette.websockets import WebSocketDisconnect

@@ -108,7 +108,8 @@ function showFrame(msg) {
     (msg.frame !== null && msg.frame !== undefined && s.load >= 0.001 ? `loading the frame ${ms(s.load)}\n` : "") +
     `propagation ${msg.propagated ? ms(s.propagate) + ` (${msg.resolution} cells)` : "0 ms (reused)"}\n` +
     `rendering ${ms(s.render)} · encoding ${ms(s.encode)}`;
-  status(msg.level === "full" ? "full view" : view.playing ? "playing (drafts)" : "draft (refines when you stop)");
+  status(msg.level === "full" ? "full view" : view.playing ? "playing (drafts)"
+         : msg.level === "preview" ? "preview (gathering the last bounce)" : "draft (refines when you stop)");
   if (view.playing && msg.version >= view.playWaitFor) playStep();
 }
 
