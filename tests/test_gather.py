@@ -66,11 +66,19 @@ def test_gather_cap_covers_the_view():
     assert widest + 15.0 <= np.degrees(cap) <= widest + 17.0     # its corner: 1.3 degrees further out
 
 
-def test_gathered_source_equals_numpy_twin():
+@pytest.mark.parametrize("albedo", [0.95, [0.95, 0.9, 0.8]])
+def test_gathered_source_equals_numpy_twin(albedo):
+    """One sun in a grey medium is transported in one channel times its colour
+    (renderer.one_colour), an RGB medium in three: both as the twin's RGB transport."""
     scene = small_scene()
+    scene.medium.albedo = np.asarray(albedo, np.float64) * np.ones(3)
     sol = popvol.solve(scene)
     inputs = renderer.render_inputs(scene, sol)
     medium, lights = inputs[0], inputs[1]
+    grid = renderer.field_bundles(sol)[0]
+    colour = renderer.one_colour(medium, lights, grid)
+    assert (colour is None) == isinstance(albedo, list)
+    assert colour is None or np.array_equal(colour, SUN["irradiance"])
     seen = voxels_seen(scene.medium.density)
     got = renderer.gather(medium, lights, renderer.field_bundles(sol), np.asarray(scene.camera.origin, float),
                           seen, 12)

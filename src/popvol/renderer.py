@@ -206,14 +206,19 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     cells = np.argwhere(density > 0)
     slot = np.full(density.shape, -1, np.int64)
     slot[tuple(cells.T)] = np.arange(len(cells))
+    # one light in a grey medium emits one colour: transport one channel, times the colour
+    colour = one_colour(medium, lights, grid)
+    if colour is not None:
+        lights = lights[:2] + (np.ones_like(lights[2]),) + lights[3:]
     lobes = np.zeros((len(cells), 3 * len(lights[0]) * grid[0].shape[1], 7), np.float32)
     emission_lobes(medium, lights, grid, spherical, cells, lobes)
     lanes = min(GATHER_LANES, n_directions)
-    out = np.zeros((lanes,) + needed.shape + (3,), np.float32)
+    out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
     norm = np.zeros((lanes,) + needed.shape, np.float32)
     gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm)
     norm = norm.sum(axis=0, dtype=np.float64)
-    light = (out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]).astype(np.float32)
+    light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
+    light = (light * colour if colour is not None else light).astype(np.float32)
     if factor > 1:
         light = upsample(light, factor, seen_box)
     else:
@@ -223,6 +228,17 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     full = np.zeros(seen.shape + (3,), np.float32)
     full[box] = light
     return full
+
+
+def one_colour(medium, lights, grid) -> np.ndarray | None:
+    """The RGB colour (float64 (3,)) of all the light a medium lit by ``lights`` scatters, where
+    it has one: a single light, grey fields and a grey medium (sigma_t and albedo alike in R, G
+    and B); None otherwise."""
+    scale, albedo_rgb = medium[1], medium[3]
+    if (len(lights[0]) == 1 and grid[0].shape[1] == 1 and np.all(scale == scale[0])
+            and np.all(albedo_rgb == albedo_rgb[0])):
+        return np.asarray(lights[2][0], np.float64)
+    return None
 
 
 def occupied_box(mask: np.ndarray, margin: int) -> tuple[slice, slice, slice]:

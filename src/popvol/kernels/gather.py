@@ -136,9 +136,12 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm):
-    """Add to ``out`` float32 (lanes, nx, ny, nz, 3) the gathered L_s / sigma_s toward the
+    """Add to ``out`` float32 (lanes, nx, ny, nz, C) the gathered L_s / sigma_s toward the
     camera at ``eye`` (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
     quadrature's sum, at the voxels where ``needed``; the caller sums the lanes and divides.
+    C = 3 (RGB), or C = 1 where every lobe has one colour (one light, a grey medium): then the
+    lobes' first weight is transported with sigma_t's first channel, and the caller multiplies
+    by the colour.
     ``lobes``: the in-scattered light of the non-empty voxels (:func:`emission_lobes`), voxel
     (i, j, k)'s at row slot[i, j, k] (int64, -1 where the density is 0).
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
@@ -154,11 +157,12 @@ def gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm):
 @nb.njit(fastmath=True, cache=True)
 def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
     """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
-    weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, 3) and the weight
+    weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
     times f_hg to ``norm`` (nx, ny, nz) where ``needed``."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     n = density.shape
     n_lobes = lobes.shape[1]
+    n_out = out.shape[3]
     grey = scale[0] == scale[1] and scale[1] == scale[2]
     w0, w1, w2 = w[0], w[1], w[2]
     a = 0
@@ -175,8 +179,8 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
     na, nb_, nc_ = n[a], n[b], n[c]
     # per slice and channel: L_in, the emission per unit length q and sigma_t, of the slice
     # before (prev) and this one (cur)
-    prev = np.zeros((3, nb_, nc_, 3))
-    cur = np.zeros((3, nb_, nc_, 3))
+    prev = np.zeros((3, nb_, nc_, n_out))
+    cur = np.zeros((3, nb_, nc_, n_out))
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         for p in range(nb_):
@@ -190,8 +194,8 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                 if row >= 0:
                     for k in range(n_lobes):
                         l0 = lobes[row, k, 4]
-                        l1 = lobes[row, k, 5]
-                        l2 = lobes[row, k, 6]
+                        l1 = lobes[row, k, 5] if n_out == 3 else 0.0
+                        l2 = lobes[row, k, 6] if n_out == 3 else 0.0
                         if l0 == 0.0 and l1 == 0.0 and l2 == 0.0:
                             continue
                         f = f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2,
@@ -203,7 +207,7 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                 stencil = _bilinear_stencil(p + ob, q + oc, nb_, nc_)
                 path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
                 t = wgt = 0.0
-                for ch in range(3):
+                for ch in range(n_out):
                     sig = scale[ch] * rho
                     qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
                     if step == 0:
@@ -228,7 +232,6 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                     r = max(math.sqrt(ex * ex + ey * ey + ez * ez), 1e-300)
                     f = weight * f_hg((w0 * ex + w1 * ey + w2 * ez) / r, g)
                     norm[ix, iy, iz] += f
-                    out[ix, iy, iz, 0] += f * cur[0, p, q, 0]
-                    out[ix, iy, iz, 1] += f * cur[0, p, q, 1]
-                    out[ix, iy, iz, 2] += f * cur[0, p, q, 2]
+                    for ch in range(n_out):
+                        out[ix, iy, iz, ch] += f * cur[0, p, q, ch]
         prev, cur = cur, prev
