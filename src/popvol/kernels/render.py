@@ -482,9 +482,18 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
                 ls0 += e0
                 ls1 += e1
                 ls2 += e2
-        L0, T0 = march_segment(L0, T0, sigma_t[0], ds, albedo[0], ls0)
-        L1, T1 = march_segment(L1, T1, sigma_t[1], ds, albedo[1], ls1)
-        L2, T2 = march_segment(L2, T2, sigma_t[2], ds, albedo[2], ls2)
+        if sigma_t[0] == sigma_t[1] and sigma_t[1] == sigma_t[2]:     # grey: one exponential
+            Tseg = math.exp(-sigma_t[0] * ds)
+            L0 += T0 * (1.0 - Tseg) * albedo[0] * ls0
+            L1 += T1 * (1.0 - Tseg) * albedo[1] * ls1
+            L2 += T2 * (1.0 - Tseg) * albedo[2] * ls2
+            T0 *= Tseg
+            T1 *= Tseg
+            T2 *= Tseg
+        else:
+            L0, T0 = march_segment(L0, T0, sigma_t[0], ds, albedo[0], ls0)
+            L1, T1 = march_segment(L1, T1, sigma_t[1], ds, albedo[1], ls1)
+            L2, T2 = march_segment(L2, T2, sigma_t[2], ds, albedo[2], ls2)
         if max(T0, T1, T2) < T_MIN:
             return L0, L1, L2, 0.0, 0.0, 0.0
     return L0, L1, L2, T0, T1, T2
