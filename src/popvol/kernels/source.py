@@ -24,8 +24,8 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
     """Add to ``out`` float32 (nx, ny, nz, 3) at the voxels where ``needed`` (bool (nx, ny, nz))
     L_s / sigma_s toward the camera at ``eye`` (float64 (3,)) of every term lit on the medium's
     grid (module docstring); other voxels are not touched (allocate ``out`` with zeros, or pass
-    a source to add to). medium, lights, grid, spherical: the render kernel's bundles (render_kernel); the
-    voxel's own g is the phase's anisotropy."""
+    a source to add to). medium, lights, grid, spherical: the render kernel's bundles
+    (render_kernel); the voxel's own g is the phase's anisotropy."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     is_point, direction, power, position = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
