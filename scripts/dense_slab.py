@@ -7,9 +7,10 @@ scattering, ``Solution.single_scattering()``) against tests/montecarlo.py's half
 plane-parallel medium of the slab's optical thickness (independent of popvol), per voxel
 optical depth and grid. Prints a Markdown table.
 
-    python scripts/dense_slab.py [--taus 0.25,1,10,100,1e4] [--resolutions 16,32] [--solver sweep]
+    python scripts/dense_slab.py [--taus 0.25,1,10,100,1e4] [--resolutions 16,32] [--solver sweep] [--pad 0]
 
-``--solver``: experimental.solver (sweep, jacobi, binned or ordinates).
+``--solver``: experimental.solver (sweep, jacobi, binned or ordinates). ``--pad N``: N layers
+of empty voxels above the slab (tests/slab.py), as a volume from a file has around it.
 """
 import argparse
 import sys
@@ -30,6 +31,7 @@ def main():
     ap.add_argument("--taus", default="0.25,1,10,100,1e4", help="optical depths of one voxel")
     ap.add_argument("--resolutions", default="16,32")
     ap.add_argument("--solver", default="sweep", help="experimental.solver")
+    ap.add_argument("--pad", type=int, default=0, help="layers of empty voxels above the slab")
     args = ap.parse_args()
     taus = [float(t) for t in args.taus.split(",")]
     resolutions = [int(r) for r in args.resolutions.split(",")]
@@ -40,7 +42,7 @@ def main():
         mc = half_space_mc(LIGHT, VIEW, ALBEDO, G, depth=slab_depth(tau), n_photons=200_000)
         cells = []
         for res in resolutions:
-            scene = apply_overrides(slab_scene(tau, res), solver=args.solver)
+            scene = apply_overrides(slab_scene(tau, res, pad=args.pad), solver=args.solver)
             sol = popvol.solve(scene)
             total = centre_radiance(popvol.render(scene, sol, jitter=False))
             single = centre_radiance(popvol.render(scene, sol.single_scattering(), jitter=False))
