@@ -13,7 +13,8 @@ import twins as ref
 from popvol.lights import DirectionalLight, PointLight
 from popvol.medium import Medium
 from popvol.pipeline import solve, voxels_seen
-from popvol.renderer import BLOCK, occupied_blocks, render, render_inputs
+from popvol.kernels.render import MAX_SEGMENT_DEPTH
+from popvol.renderer import BLOCK, densest_in_blocks, render, render_inputs
 from popvol.scene import Method, Scene
 
 
@@ -136,10 +137,18 @@ def test_empty_medium_shows_the_background():
 
 @pytest.mark.parametrize("isotropic, optics, combined", [("walk", "grey", True), ("diffusion", "grey", True),
                                                          ("diffusion", "rgb, per-voxel g", True),
-                                                         ("diffusion", "rgb, per-voxel g", False)])
+                                                         ("diffusion", "rgb, per-voxel g", False),
+                                                         ("diffusion", "dense", True)])
 def test_render_kernel_equals_numpy_twin(isotropic, optics, combined):
-    scene = blob_scene([0.3, -0.6, 0.74], w=12, h=8, peak_tau=2.0, albedo=0.8, g=0.5)
-    if optics != "grey":
+    """"dense": up to 18 mean free paths per voxel, so the march splits its segments
+    (kernels/render.py, MAX_SEGMENT_DEPTH) in the kernel and the twin alike."""
+    scene = blob_scene([0.3, -0.6, 0.74], w=12, h=8, peak_tau=160.0 if optics == "dense" else 2.0,
+                       albedo=0.8, g=0.5)
+    if optics == "dense":
+        med = scene.medium
+        scene.method.step = 1.0
+        assert float(med.density.max() * med.scale.max() * med.voxel_size.min()) > 8 * MAX_SEGMENT_DEPTH
+    elif optics != "grey":
         med = scene.medium
         g = np.linspace(0.2, 0.7, med.shape[0], dtype=np.float32)[:, None, None] * np.ones(med.shape, np.float32)
         scene.medium = Medium(med.density, med.voxel_size, med.origin, scale=med.scale * [1.0, 0.5, 0.25],
@@ -298,7 +307,7 @@ def test_empty_space_skipping_changes_no_pixel():
     with the combined source."""
     scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=40, h=24, n=32, peak_tau=4.0))
     scene.medium = cut_blob(n=32, cut=0.1, peak_tau=4.0)
-    blocks = occupied_blocks(voxels_seen(scene.medium.density), BLOCK)
+    blocks = densest_in_blocks(scene.medium.density, BLOCK) > 0
     assert blocks.shape == (4, 4, 4) and 0 < blocks.sum() < blocks.size
     sol = solve(scene)
     for combined in (True, False):
@@ -307,17 +316,21 @@ def test_empty_space_skipping_changes_no_pixel():
         assert skipped.max() > 0
 
 
-def test_occupied_blocks_hold_every_point_of_nonzero_density(rng):
-    """A block is empty only where the density's trilinear value (the twin's, clamped as the
-    kernel's stencil) is 0 at every point whose clamped cell index lies in it; checked at
-    random points of a sparse random medium, and on a voxel at the grid's far corner."""
+def test_blocks_hold_the_largest_density_near_them(rng):
+    """A block's value bounds the density's trilinear value (the twin's, clamped as the kernel's
+    stencil) at every point whose clamped cell index lies in it, so it is 0 (empty) only where
+    that is 0 throughout; checked at random points of a sparse random medium, and on a voxel at
+    the grid's far corner."""
     rho = np.zeros((20, 17, 9), np.float32)
     rho[tuple(rng.integers(0, rho.shape, (3, 3)).T)] = rng.random(3) + 0.1
-    blocks = occupied_blocks(voxels_seen(rho), 8)
+    densest = densest_in_blocks(rho, 8)
+    blocks = densest > 0
     assert blocks.shape == (3, 3, 2) and 0 < blocks.sum() < blocks.size
     q = rng.uniform(-0.5, np.array(rho.shape) - 0.5, (200000, 3))
     b = np.clip(q, 0, np.array(rho.shape) - 1).astype(int) // 8
-    assert blocks[tuple(b[ref.trilinear(rho, q) > 0].T)].all()
+    value = ref.trilinear(rho, q)
+    assert blocks[tuple(b[value > 0].T)].all()
+    assert np.all(value <= densest[tuple(b.T)] * (1 + 1e-6))
     rho[:] = 0.0
     rho[19, 16, 8] = 1.0                   # read by the stencils of points in y-block 1 too
-    assert set(zip(*np.nonzero(occupied_blocks(voxels_seen(rho), 8)))) == {(2, 1, 0), (2, 1, 1), (2, 2, 0), (2, 2, 1)}
+    assert set(zip(*np.nonzero(densest_in_blocks(rho, 8) > 0))) == {(2, 1, 0), (2, 1, 1), (2, 2, 0), (2, 2, 1)}

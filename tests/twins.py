@@ -372,8 +372,11 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
     view transmittance are per colour. ``combined`` (as the renderer's): samples at least
     renderer.NEAR_VOXELS voxels from the camera read the grid-lit terms from the combined source
     (``source``, default :func:`in_scattering_source`) by trilinear interpolation, plus the
-    point lights' walk lobes; nearer ones, or all without ``combined``, are lit light by light."""
-    from popvol.renderer import NEAR_VOXELS
+    point lights' walk lobes; nearer ones, or all without ``combined``, are lit light by light.
+    A segment in an 8^3 block whose densest voxel (within one voxel of it) makes it optically
+    thicker than MAX_SEGMENT_DEPTH is split into equal parts, each sampled at its centre."""
+    from popvol.kernels.render import MAX_SEGMENT_DEPTH, MAX_SUBSTEPS
+    from popvol.renderer import BLOCK, NEAR_VOXELS
     med, cam, m = scene.medium, scene.camera, scene.method
     fwd, right, up = cam.basis()
     tan_half = np.tan(np.radians(cam.fov) / 2)
@@ -392,20 +395,9 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
         source = in_scattering_source(scene, solution)
     edge = np.asarray(med.shape) - 0.5
     n_ch = solution.phi.shape[1]
-    L, Tv, i = np.zeros(3), np.ones(3), 0
-    while t0 + i * step < t1:
-        t = t0 + i * step          # the kernel's samples: t0 + (i + 1/2) step, the last segment cut at t1
-        ds = min(step, t1 - t)
-        ts = t + 0.5 * ds
-        x = cam.origin + ts * d
-        i += 1
-        q = np.clip((x - med.origin) / med.voxel_size, -0.5, edge)
-        rho = float(trilinear(med.density, q))
-        if rho <= 0:
-            continue
-        albedo = (float(trilinear(med.albedo, q)) * np.ones(3) if med.albedo_per_voxel
-                  else np.asarray(med.albedo, float))
-        g = float(trilinear(med.g, q)) if med.g_per_voxel else med.g
+
+    def light_at(x, ts, q, g):
+        """L_s / sigma_s at the sample x, ts along the ray (q: its clamped cell index)."""
         from_source = combined and ts >= near
         Ls = np.array([float(trilinear(source[..., k], q)) for k in range(3)]) if from_source else np.zeros(3)
         for l in range(len(solution.directions)):
@@ -433,13 +425,40 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
                     pd = float(trilinear(solution.phid[l, c], q))
                     J = np.array([float(trilinear(solution.flux[l, c, k], q)) for k in range(3)])
                     Ls += float(diffuse_lobe(pd, J, d, g, solution.lobe_cap[l])) * E
-        sigma_t = med.scale * rho
-        T_seg = np.exp(-sigma_t * ds)
-        L += np.where(sigma_t > 0, Tv * (1 - T_seg) * albedo * Ls, 0.0)
-        Tv *= T_seg
-        if Tv.max() < 1e-4:
-            Tv[:] = 0.0
-            break
+        return Ls
+
+    def parts(x, ds):
+        """How many parts the segment at x is split into: enough that none is optically thicker
+        than MAX_SEGMENT_DEPTH at the largest density within one voxel of x's 8^3 block."""
+        b = np.clip((x - med.origin) / med.voxel_size, 0, np.asarray(med.shape) - 1).astype(int) // BLOCK
+        lo_v, hi_v = np.maximum(BLOCK * b - 1, 0), BLOCK * (b + 1) + 2
+        rho_max = float(med.density[lo_v[0]:hi_v[0], lo_v[1]:hi_v[1], lo_v[2]:hi_v[2]].max())
+        tau = rho_max * float(np.max(med.scale)) * ds
+        return 1 if tau <= MAX_SEGMENT_DEPTH else min(int(np.ceil(tau / MAX_SEGMENT_DEPTH)), MAX_SUBSTEPS)
+
+    L, Tv, i = np.zeros(3), np.ones(3), 0
+    while t0 + i * step < t1:
+        t = t0 + i * step          # the kernel's samples: t0 + (i + 1/2) step, the last segment cut at t1
+        ds = min(step, t1 - t)
+        i += 1
+        k = parts(cam.origin + (t + 0.5 * ds) * d, ds)
+        for j in range(k):         # a segment in an optically thick block: k parts, each sampled
+            ts = t + (j + 0.5) * ds / k
+            x = cam.origin + ts * d
+            q = np.clip((x - med.origin) / med.voxel_size, -0.5, edge)
+            rho = float(trilinear(med.density, q))
+            if rho <= 0:
+                continue
+            albedo = (float(trilinear(med.albedo, q)) * np.ones(3) if med.albedo_per_voxel
+                      else np.asarray(med.albedo, float))
+            g = float(trilinear(med.g, q)) if med.g_per_voxel else med.g
+            Ls = light_at(x, ts, q, g)
+            sigma_t = med.scale * rho
+            T_seg = np.exp(-sigma_t * ds / k)
+            L += np.where(sigma_t > 0, Tv * (1 - T_seg) * albedo * Ls, 0.0)
+            Tv *= T_seg
+            if Tv.max() < 1e-4:
+                return L
     return L + Tv * background_twin(scene, d)
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, gathered_source
-from .kernels.render import render_kernel
+from .kernels.render import MAX_SEGMENT_DEPTH, render_kernel
 from .kernels.sampling import block_means, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import solve, voxels_seen
@@ -70,8 +70,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     """The render kernel's inputs but the image, packed as it takes them (kernels/render.py):
     (medium, lights, grid, spherical, view, camera, march, background). The one place that
     packs the scene and the solution's fields for the kernel; with ``combined`` it builds the
-    view's combined in-scattering source (so its cost is part of rendering), with ``skip`` the
-    coarse occupancy grid."""
+    view's combined in-scattering source (so its cost is part of rendering); ``skip``: the march
+    jumps over the coarse grid's empty blocks."""
     med = scene.medium
     cam = scene.camera
     m = scene.method
@@ -80,7 +80,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
                           else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
     seen = voxels_seen(med.density)
-    blocks = occupied_blocks(seen, BLOCK) if skip else np.zeros((0, 0, 0), bool)
+    blocks = densest_in_blocks(med.density, BLOCK)
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
               med.origin, med.voxel_size, lo, hi, blocks, BLOCK)
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
@@ -119,7 +119,9 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
                              seen, source)
     near = 0.0 if gathering else float(NEAR_VOXELS * med.voxel_size.min())
     view = (source, near)
-    march = (float(m.step * med.voxel_size.min()), int(m.spp), int(m.seed), bool(jitter))
+    step = float(m.step * med.voxel_size.min())
+    dense = bool(blocks.size) and float(blocks.max()) * float(np.max(med.scale)) * step > MAX_SEGMENT_DEPTH
+    march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense)
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
 
 
@@ -315,19 +317,19 @@ def upsample(coarse: np.ndarray, factor: int, needed: np.ndarray) -> np.ndarray:
     return out
 
 
-def occupied_blocks(seen: np.ndarray, block: int) -> np.ndarray:
-    """bool (ceil(nx / block), ...): whether block b (voxels [block b, block (b + 1)) along each
-    axis) has density > 0 within one voxel of it, from ``seen`` = pipeline.voxels_seen(density).
-    Where not, the density's trilinear value is 0 at every point whose clamped cell index lies
-    in the block, with a voxel to spare (the stencil of such a point reads voxels
-    [block b, block (b + 1)] only)."""
-    m = seen
-    for axis in range(3):             # any over voxels [block b, block (b + 1)], inclusive
+def densest_in_blocks(density: np.ndarray, block: int) -> np.ndarray:
+    """float32 (ceil(nx / block), ...): the largest density within one voxel of block b (voxels
+    [block b - 1, block (b + 1) + 1] along each axis, within the grid). Where it is 0, the density's
+    trilinear value is 0 at every point whose clamped cell index lies in the block, with a voxel
+    to spare (the stencil of such a point reads voxels [block b, block (b + 1)] only), so the
+    march skips the block; elsewhere it bounds the density a march segment there can meet."""
+    m = density
+    for axis in range(3):             # the largest over voxels [block b - 1, block (b + 1) + 1]
         n = m.shape[axis]
-        parts = [np.take(m, np.arange(b, min(b + block + 1, n)), axis=axis).any(axis=axis, keepdims=True)
+        parts = [np.take(m, np.arange(max(b - 1, 0), min(b + block + 2, n)), axis=axis).max(axis=axis, keepdims=True)
                  for b in range(0, n, block)]
         m = np.concatenate(parts, axis=axis)
-    return np.ascontiguousarray(m)
+    return np.ascontiguousarray(m, np.float32)
 
 
 def background_map(scene: Scene) -> np.ndarray:

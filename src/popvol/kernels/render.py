@@ -30,10 +30,14 @@ Two shortcuts, neither changing which samples are taken:
   interpolates the product, not the fields, and its phase is evaluated at voxel centres, so the
   image changes slightly (docs/METHOD.md, "Rendering"); samples nearer the camera than ``near``,
   where the view direction turns fast across a voxel, are lit light by light.
-- Empty-space skipping. A coarse grid says which blocks of voxels have density within one
-  voxel of them; a sample of zero density in an empty block jumps to the first sample past the
-  block. Samples sit at t0 + (i + jt) step, not at an accumulated t, so the jump leaves every
-  other sample where it was: the image is bitwise the same without the grid.
+- Empty-space skipping. A coarse grid holds each block's largest density within one voxel of
+  it; a sample in an empty block jumps to the first sample past the block. Samples sit at
+  t0 + (i + jt) step, not at an accumulated t, so the jump leaves every other sample where it
+  was: the image is bitwise the same without skipping.
+
+One refinement that does change samples, only where the medium is optically thick: a segment
+in a block whose densest voxel would make it thicker than MAX_SEGMENT_DEPTH mean free paths is
+split into equal parts, each sampled (:func:`march_ray`).
 
 The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` builds them):
   medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block)
@@ -42,7 +46,7 @@ The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` b
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
   view       (source, near)                                 the combined source, if any
   camera     (origin, basis, tan_half, width, height)
-  march      (step, spp, seed, jitter)
+  march      (step, spp, seed, jitter, skip, dense)
 (types in :func:`render_kernel`). NumPy twin: tests/twins.py (render_pixel).
 """
 import math
@@ -57,6 +61,10 @@ INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 MAX_DIFFUSE_ANISOTROPY = 0.5   # |J| / phi at a Marshak (vacuum) boundary, where diffusion's light
                                # leaves; 1/3 (P1 >= 0) left the lit faces ~6 % dark, 1 made speckles
 T_MIN = 1e-4    # stop marching when the view transmittance falls below this (bias <= 1e-4 of L)
+#: a march segment is split where its block's densest voxel makes it optically thicker than this
+#: (a lit skin thinner than a segment is sampled, not stepped over: docs/METHOD.md, "Rendering")
+MAX_SEGMENT_DEPTH = 2.0
+MAX_SUBSTEPS = 256      # ... into at most this many parts
 G_MAX = 0.9999  # |g A| at most this in f_hg
 # Positions in the bundles, for the helpers of the innermost loops (per sample, light and
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
@@ -183,7 +191,7 @@ def pixel_sample(march, px, py, s):
     """Sample s of pixel (px, py): its sub-pixel offsets (jx, jy) and the offset jt of the
     march's sample points within their segments, each in [0, 1): hashed from the seed, or 1/2
     without jitter (pixel centres and segment midpoints)."""
-    step, spp, seed, jitter = march
+    step, spp, seed, jitter, skip, dense = march
     if jitter:
         return (hash_uniform(seed, px, py, s, 0), hash_uniform(seed, px, py, s, 1),
                 hash_uniform(seed, px, py, s, 2))
@@ -412,43 +420,91 @@ def _block_axis(x, o, h, n, size, n_blocks, d):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def empty_block_exit(medium, x, d):
-    """Empty-space skipping: the distance along the ray d from the point x to where it leaves
-    x's block of the coarse occupancy grid, if that block is empty (no density within one voxel
-    of it, so the density's trilinear value is 0 everywhere in it); -1 if it is not, or
-    without the grid (blocks of shape (0, 0, 0))."""
+def block_at(medium, x, d):
+    """x's block of the coarse grid: (the largest density within one voxel of it, the distance
+    along the ray d to where the ray leaves it); (-1, -1) without the grid (shape (0, 0, 0))."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     if blocks.shape[0] == 0:
-        return -1.0
+        return -1.0, -1.0
     s = density.shape
     bx, ex = _block_axis(x[0], origin[0], voxel[0], s[0], block, blocks.shape[0], d[0])
     by, ey = _block_axis(x[1], origin[1], voxel[1], s[1], block, blocks.shape[1], d[1])
     bz, ez = _block_axis(x[2], origin[2], voxel[2], s[2], block, blocks.shape[2], d[2])
-    if blocks[bx, by, bz]:
-        return -1.0
-    return max(min(ex, ey, ez), 0.0)
+    return float(blocks[bx, by, bz]), max(min(ex, ey, ez), 0.0)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def substeps(medium, rho_max, ds):
+    """How many parts a march segment of length ds is split into, in a block whose densest
+    voxel (within one voxel of it) has density ``rho_max``: enough that none is optically
+    thicker than MAX_SEGMENT_DEPTH at that density, at most MAX_SUBSTEPS; 1 without the grid."""
+    scale = medium[1]
+    tau = rho_max * max(scale[0], scale[1], scale[2]) * ds
+    if tau <= MAX_SEGMENT_DEPTH:
+        return 1
+    return min(int(math.ceil(tau / MAX_SEGMENT_DEPTH)), MAX_SUBSTEPS)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def light_sample(lights, grid, spherical, view, x, d, corners, g, ts):
+    """L_s / sigma_s at the sample x (RGB) at distance ts along the camera ray d: with a combined
+    source (``view`` = (source, near), source of shape (nx, ny, nz, 3)) its trilinear value plus
+    the point lights' walk lobes where ts >= near; otherwise (or without one: shape (0, 0, 0,
+    3)) light by light (:func:`light_in_scattering`)."""
+    source, near = view
+    is_point = lights[IS_POINT]
+    ls0 = ls1 = ls2 = 0.0
+    if source.shape[0] > 0 and ts >= near:
+        ls0, ls1, ls2 = interpolate_rgb(source, corners)
+        for l in range(is_point.shape[0]):
+            if is_point[l]:
+                e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, False)
+                ls0 += e0
+                ls1 += e1
+                ls2 += e2
+    else:
+        for l in range(is_point.shape[0]):
+            e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, True)
+            ls0 += e0
+            ls1 += e1
+            ls2 += e2
+    return ls0, ls1, ls2
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def march_segments(L, T, sigma_t, ds, albedo, ls):
+    """:func:`march_segment` in the three channels (L, T, sigma_t, albedo, ls: 3-tuples); a grey
+    medium's segment takes one exponential."""
+    L0, L1, L2 = L
+    T0, T1, T2 = T
+    if sigma_t[0] == sigma_t[1] and sigma_t[1] == sigma_t[2]:
+        Tseg = math.exp(-sigma_t[0] * ds)
+        return ((L0 + T0 * (1.0 - Tseg) * albedo[0] * ls[0], L1 + T1 * (1.0 - Tseg) * albedo[1] * ls[1],
+                 L2 + T2 * (1.0 - Tseg) * albedo[2] * ls[2]), (T0 * Tseg, T1 * Tseg, T2 * Tseg))
+    L0, T0 = march_segment(L0, T0, sigma_t[0], ds, albedo[0], ls[0])
+    L1, T1 = march_segment(L1, T1, sigma_t[1], ds, albedo[1], ls[1])
+    L2, T2 = march_segment(L2, T2, sigma_t[2], ds, albedo[2], ls[2])
+    return (L0, L1, L2), (T0, T1, T2)
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
-    """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt): from t0 to t1
-    (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1) step] (the last one
-    cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1, L2, T0,
+    """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense): from
+    t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1) step] (the
+    last one cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1, L2, T0,
     T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md Eq. 24),
     and the view transmittance T_v at the exit, 0 once it fell below T_MIN.
 
-    L_s / sigma_s: with a combined source (``view`` = (source, near), source of shape (nx, ny,
-    nz, 3)), its trilinear value plus the point lights' walk lobes at samples at least ``near``
-    from o, and light by light (:func:`light_in_scattering`) nearer; without one (shape (0, 0,
-    0, 3)), light by light everywhere. Samples in empty blocks (:func:`empty_block_exit`) are
-    skipped: their density is 0, so they add nothing, and the samples taken are the same."""
-    t0, t1, step, jt = segments
-    source, near = view
-    use_source = source.shape[0] > 0
-    is_point = lights[IS_POINT]
-    n_lights = is_point.shape[0]
-    L0 = L1 = L2 = 0.0
-    T0 = T1 = T2 = 1.0
+    L_s / sigma_s: :func:`light_sample`. A segment in a block of the coarse grid so dense that
+    it would be optically thicker than MAX_SEGMENT_DEPTH is split into :func:`substeps` equal
+    parts, each sampled at offset jt, so that a lit skin thinner than a segment is not stepped
+    over (segments elsewhere are as they were; ``dense`` says whether any block is that dense,
+    so an optically thin medium's march never looks the blocks up where it has density). With
+    ``skip``, samples in empty blocks (no density within one voxel) jump to the first sample past
+    the block: their density is 0, so they add nothing, and the samples taken are the same."""
+    t0, t1, step, jt, skip, dense = segments
+    L = (0.0, 0.0, 0.0)
+    T = (1.0, 1.0, 1.0)
     i = 0
     while True:
         t = t0 + i * step           # not accumulated: skipping samples leaves the others as they are
@@ -459,44 +515,32 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
         i += 1
         x = (o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2])
         corners, rho, g, sigma_t, albedo = medium_at(medium, x)
-        if rho <= 0.0:
-            exit = empty_block_exit(medium, x, d)
-            if exit >= 0.0:
-                if ts + exit >= t1:
-                    break
-                # the first sample at or past the block's exit (the blocks hold one voxel of margin)
-                i = max(i, int(math.ceil((ts + exit - t0) / step - jt)))
-            continue
-        ls0 = ls1 = ls2 = 0.0
-        if use_source and ts >= near:
-            ls0, ls1, ls2 = interpolate_rgb(source, corners)
-            for l in range(n_lights):
-                if is_point[l]:
-                    e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, False)
-                    ls0 += e0
-                    ls1 += e1
-                    ls2 += e2
-        else:
-            for l in range(n_lights):
-                e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, True)
-                ls0 += e0
-                ls1 += e1
-                ls2 += e2
-        if sigma_t[0] == sigma_t[1] and sigma_t[1] == sigma_t[2]:     # grey: one exponential
-            Tseg = math.exp(-sigma_t[0] * ds)
-            L0 += T0 * (1.0 - Tseg) * albedo[0] * ls0
-            L1 += T1 * (1.0 - Tseg) * albedo[1] * ls1
-            L2 += T2 * (1.0 - Tseg) * albedo[2] * ls2
-            T0 *= Tseg
-            T1 *= Tseg
-            T2 *= Tseg
-        else:
-            L0, T0 = march_segment(L0, T0, sigma_t[0], ds, albedo[0], ls0)
-            L1, T1 = march_segment(L1, T1, sigma_t[1], ds, albedo[1], ls1)
-            L2, T2 = march_segment(L2, T2, sigma_t[2], ds, albedo[2], ls2)
-        if max(T0, T1, T2) < T_MIN:
-            return L0, L1, L2, 0.0, 0.0, 0.0
-    return L0, L1, L2, T0, T1, T2
+        k = 1
+        if rho <= 0.0 or dense:
+            rho_max, exit = block_at(medium, x, d)
+            if rho_max == 0.0:      # an empty block
+                if skip:
+                    if ts + exit >= t1:
+                        break
+                    # the first sample at or past the block's exit (the blocks hold one voxel of margin)
+                    i = max(i, int(math.ceil((ts + exit - t0) / step - jt)))
+                continue
+            if dense:
+                k = substeps(medium, rho_max, ds)
+            if k == 1 and rho <= 0.0:
+                continue
+        for j in range(k):
+            if k > 1:
+                ts = t + (j + jt) * ds / k
+                x = (o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2])
+                corners, rho, g, sigma_t, albedo = medium_at(medium, x)
+                if rho <= 0.0:
+                    continue
+            ls = light_sample(lights, grid, spherical, view, x, d, corners, g, ts)
+            L, T = march_segments(L, T, sigma_t, ds / k, albedo, ls)
+            if max(T[0], T[1], T[2]) < T_MIN:
+                return L[0], L[1], L[2], 0.0, 0.0, 0.0
+    return L[0], L[1], L[2], T[0], T[1], T[2]
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -508,8 +552,8 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         density; albedo, g: float32 grids (1, 1, 1) or density-shaped; albedo_rgb float64 (3,),
         the albedo of channel c is albedo * albedo_rgb[c]; origin, voxel float64 (3,): the
         centre of voxel (0, 0, 0) and the voxel size; lo, hi float64 (3,): the medium's box;
-        blocks bool (ceil(nx / block), ...): whether any density is within one voxel of each
-        block of block^3 voxels (empty-space skipping; shape (0, 0, 0): none); block int.
+        blocks float32 (ceil(nx / block), ...): the largest density within one voxel of each
+        block of block^3 voxels (0: empty; shape (0, 0, 0): no grid); block int.
     lights: is_point bool (n_lights,); direction float64 (n_lights, 3), the direction a sun's
         light travels; power float64 (n_lights, 3), RGB irradiance or intensity; position
         float64 (n_lights, 3), a point light's.
@@ -528,7 +572,9 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     camera: origin float64 (3,); basis float64 (3, 3), rows forward, right, up; tan_half, the
         tangent of half the vertical field of view; width, height in pixels.
     march: step in world units; spp samples per pixel; seed; jitter: hashed sub-pixel and
-        along-ray offsets (False: pixel centres and segment midpoints, for tests).
+        along-ray offsets (False: pixel centres and segment midpoints, for tests); skip: jump
+        over empty blocks; dense: whether a segment of ``step`` is optically thicker than
+        MAX_SEGMENT_DEPTH in some block (march_ray splits those).
     background: float32 (1, 1, 3) (a constant) or (H, 2H, 3) (a lat-long environment map, see
         background_radiance).
     """
@@ -538,7 +584,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     fields, offset, shape, params, frame, full = spherical
     source, near = view
     o, basis, tan_half, width, height = camera
-    step, spp, seed, jitter = march
+    step, spp, seed, jitter, skip, dense = march
     for py in nb.prange(height):
         # The bundles are rebuilt here from their arrays, so that the helpers read the arrays
         # themselves: with the bundles as passed in, the march took and dropped references to
@@ -549,7 +595,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         spherical_ = (fields, offset, shape, params, frame, full)
         view_ = (source, near)
         camera_ = (o, basis, tan_half, width, height)
-        march_ = (step, spp, seed, jitter)
+        march_ = (step, spp, seed, jitter, skip, dense)
         for px in range(width):
             acc0 = acc1 = acc2 = 0.0
             for s in range(spp):
@@ -557,7 +603,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
                 d = camera_ray(camera_, px + jx, py + jy)
                 t0, t1 = ray_box(o, d, lo, hi)
                 L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
-                                                   (t0, t1, step, jt))
+                                                   (t0, t1, step, jt, skip, dense))
                 b0, b1, b2 = background_radiance(background, d)
                 acc0 += L0 + T0 * b0
                 acc1 += L1 + T1 * b1
