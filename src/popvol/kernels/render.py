@@ -491,9 +491,9 @@ def march_segments(L, T, sigma_t, ds, albedo, ls):
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense): from
     t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1) step] (the
-    last one cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1, L2, T0,
-    T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md Eq. 24),
-    and the view transmittance T_v at the exit, 0 once it fell below T_MIN.
+    last one cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1,
+    L2, T0, T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md
+    Eq. 24), and the view transmittance T_v at the exit, 0 once it fell below T_MIN.
 
     L_s / sigma_s: :func:`light_sample`. A segment in a block of the coarse grid so dense that
     it would be optically thicker than MAX_SEGMENT_DEPTH is split into :func:`substeps` equal
