@@ -12,7 +12,7 @@ from popvol.camera import Camera
 import twins as ref
 from popvol.lights import DirectionalLight, PointLight
 from popvol.medium import Medium
-from popvol.pipeline import solve, voxels_seen
+from popvol.pipeline import solve
 from popvol.kernels.render import MAX_SEGMENT_DEPTH
 from popvol.renderer import BLOCK, densest_in_blocks, render, render_inputs
 from popvol.scene import Method, Scene

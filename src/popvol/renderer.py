@@ -7,7 +7,7 @@ import numpy as np
 
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, gathered_source
-from .kernels.render import MAX_SEGMENT_DEPTH, render_kernel
+from .kernels.render import render_kernel, substeps
 from .kernels.sampling import block_means, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import solve, voxels_seen
@@ -15,7 +15,7 @@ from .results import Solution
 from .scene import Scene
 
 
-#: voxels per edge of a block of the coarse occupancy grid (empty-space skipping)
+#: voxels per edge of a block of the coarse grid (empty-space skipping, splitting thick segments)
 BLOCK = 8
 #: samples nearer the camera than this many (smallest) voxels are lit light by light, not from
 #: the combined source: there the view direction turns by more than 1/32 rad across a voxel
@@ -120,7 +120,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     near = 0.0 if gathering else float(NEAR_VOXELS * med.voxel_size.min())
     view = (source, near)
     step = float(m.step * med.voxel_size.min())
-    dense = bool(blocks.size) and float(blocks.max()) * float(np.max(med.scale)) * step > MAX_SEGMENT_DEPTH
+    # whether any block is dense enough that the march splits its segments (the kernel's own rule)
+    dense = bool(blocks.size) and substeps(medium, float(blocks.max()), step) > 1
     march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense)
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
 
@@ -322,7 +323,8 @@ def densest_in_blocks(density: np.ndarray, block: int) -> np.ndarray:
     [block b - 1, block (b + 1) + 1] along each axis, within the grid). Where it is 0, the density's
     trilinear value is 0 at every point whose clamped cell index lies in the block, with a voxel
     to spare (the stencil of such a point reads voxels [block b, block (b + 1)] only), so the
-    march skips the block; elsewhere it bounds the density a march segment there can meet."""
+    march skips the block; elsewhere it bounds the density at every such point, and the march
+    splits its segments there by it (kernels/render.py, substeps)."""
     m = density
     for axis in range(3):             # the largest over voxels [block b - 1, block (b + 1) + 1]
         n = m.shape[axis]
