@@ -166,11 +166,18 @@ def test_densities_beyond_float32_are_not_called_nan(tmp_path):
     refused(file_scene(path), "optical depth", "medium.scale")
 
 
-def test_dense_medium_renders_finite_with_a_warning_that_names_the_cause(tmp_path, capsys):
-    """scale = 1e6 on a 16^3 blob: once a black silhouette, a NaN budget and a warning blaming
-    method.max_iterations. Now the budget is finite and balanced, the run converges, and the
-    warning names the voxels' optical thickness (the method's documented bias there)."""
+def test_dense_medium_renders_finite_converged_and_lit(tmp_path, capsys):
+    """scale = 1e6 on a 16^3 blob (2e4 mean free paths per voxel at its centre): once a black
+    silhouette, a NaN budget and a warning blaming method.max_iterations; later a lit face far too
+    dark (x0.04 of the image at scale 800). Now the budget is finite and balanced, the run
+    converges without a warning, and the lit face is as bright as at scale 800 (100 mean free
+    paths per voxel at the centre) within 15 % (measured x0.90): an optically thick medium's
+    reflection depends on its albedo and g, not on its density (medium.MAX_TRANSPORT_DEPTH; the
+    level itself is held to Monte Carlo in test_dense_slab.py). What is left of the gap is the
+    single scattering: the blob's tail reaches the grid's edge, where the fields are clamped to
+    the outermost voxels (docs/METHOD.md, "Optically thick voxels")."""
     import json
+    from popvol.io.images import read_exr
     n = 16
     x = (np.arange(n) + 0.5) / n * 2 - 1
     X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
@@ -180,18 +187,20 @@ def test_dense_medium_renders_finite_with_a_warning_that_names_the_cause(tmp_pat
     scene = toml_scene(tmp_path, f"""[medium]\nfile = "{path}"\nscale = 1e6\nalbedo = 0.9\ng = 0.5
 [[lights]]\ndirection = [0.3, -0.4, -1.0]\n[camera]\norigin = [0, 0, 4]\ntarget = [0, 0, 0]
 width = 32\nheight = 18\n[method]\nresolution = 32\n""")
-    code, err = run(["render", scene, "-o", tmp_path / "a.png", "--stats", tmp_path / "s.json"], capsys)
+    code, err = run(["render", scene, "-o", tmp_path / "a.png", "--exr", tmp_path / "a.exr",
+                     "--stats", tmp_path / "s.json"], capsys)
     assert code in (0, None), err
-    warning = [line for line in err.splitlines() if "warning" in line]
-    assert len(warning) == 1 and "mean free paths" in warning[0] and "max_iterations" not in warning[0], err
+    assert "warning" not in err, err
     stats = json.loads((tmp_path / "s.json").read_text())      # strict JSON: no NaN tokens
     budget = stats["domains"][0]["budget_per_unit_irradiance"]
     assert stats["domains"][0]["converged"]
     assert all(math.isfinite(v) for v in budget.values())
     assert abs(budget["balance_error"]) < 1e-4 * budget["injected"]
-    assert load_scene(scene).medium.thickness_warning() is not None
-    thin = toml_scene(tmp_path, scene.read_text().replace("scale = 1e6", "scale = 800"), "thin.toml")
-    assert load_scene(thin).medium.thickness_warning() is None      # 100 mean free paths per voxel
+    thinner = toml_scene(tmp_path, scene.read_text().replace("scale = 1e6", "scale = 800"), "thinner.toml")
+    code, err = run(["render", thinner, "-o", tmp_path / "b.png", "--exr", tmp_path / "b.exr"], capsys)
+    assert code in (0, None), err
+    dense, less = read_exr(tmp_path / "a.exr")[6:12, 13:19, 0], read_exr(tmp_path / "b.exr")[6:12, 13:19, 0]
+    assert dense.mean() == pytest.approx(less.mean(), rel=0.15)
 
 
 def test_envmap_scale_that_overflows_is_refused(tmp_path):

@@ -118,9 +118,6 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
     seconds = {"load": t_load, **solution.seconds, "render": t_render, "write": t_write,
                "total": time.perf_counter() - t0}
     info = solution.stats()
-    thick = sc.medium.thickness_warning()
-    if thick:
-        click.echo(f"popvol: warning: {thick}", err=True)
     for d in info["domains"]:
         if not d["converged"]:
             click.echo(f"popvol: warning: light {d['light']} stopped after {d['iterations']} iterations "

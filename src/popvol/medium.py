@@ -16,7 +16,7 @@ channel; a grey one once.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -39,10 +39,13 @@ MAX_SCALE = 1e30
 #: Largest optical depth scale * max density * diagonal of the box: far beyond any cloud (a
 #: thunderhead is ~1e4); denser media are opaque and their products overflow.
 MAX_OPTICAL_DEPTH = 1e7
-#: Optical depth of one voxel (sigma_t x the voxel's shortest side) above which the method's
-#: cell-averaged fields darken lit surfaces: the blob of scripts/dense_blob.py (albedo 0.9, g 0.5)
-#: keeps about 0.8 of its lit face's radiance at 50 mean free paths per voxel and a fifth at 500.
-THICK_VOXEL = 100.0
+#: Optical depth of one voxel (sigma_t x the voxel's shortest side) that light transport sees at
+#: most (docs/METHOD.md, "Optically thick voxels"): the walk, the diffusion stage and the gathered
+#: last bounce solve a medium whose densest voxels are capped at this many mean free paths, while
+#: the unscattered light and the camera's march see the true density. An optically thick region's
+#: reflection depends on its albedo and g, not on its density, and a cell's fields are its mean,
+#: which over a voxel many mean free paths deep is far below the light at its lit face.
+MAX_TRANSPORT_DEPTH = 2.0
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
@@ -162,15 +165,15 @@ class Medium:
         with np.errstate(over="ignore"):
             return float(self.scale.max() * float(self.density.max()) * float(self.voxel_size.min()))
 
-    def thickness_warning(self) -> str | None:
-        """A one-line warning when voxels are thicker than THICK_VOXEL mean free paths, where the
-        image is too dark (docs/METHOD.md, "Where the method is biased"); None otherwise."""
-        tau = self.max_voxel_optical_depth()
-        if tau <= THICK_VOXEL:
-            return None
-        return (f"{self.source}: the densest voxels are {tau:.3g} mean free paths across (medium.scale x "
-                f"density x voxel size); above {THICK_VOXEL:g} popvol renders lit surfaces too dark "
-                "(docs/METHOD.md, 'Where the method is biased')")
+    def transport_medium(self) -> "Medium":
+        """The medium light transport solves (docs/METHOD.md, "Optically thick voxels"): this
+        one with its density capped where a voxel would be more than MAX_TRANSPORT_DEPTH mean free
+        paths across (sigma_t of the densest channel times the voxel's shortest side), albedo
+        and g unchanged; this medium itself where no voxel is."""
+        if self.max_voxel_optical_depth() <= MAX_TRANSPORT_DEPTH:
+            return self
+        cap = MAX_TRANSPORT_DEPTH / (float(self.scale.max()) * float(self.voxel_size.min()))
+        return replace(self, density=np.minimum(self.density, np.float32(cap)))
 
     def max_optical_depth(self) -> float:
         """Largest sigma_t times the box's diagonal: a bound on the optical depth of any path

@@ -22,6 +22,7 @@ from .errors import PopvolError
 from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
 from .results import DomainSolution, PointFields, Solution
+from .walk import replace_direct
 
 
 def check_decay(medium, method) -> None:
@@ -34,7 +35,9 @@ def check_decay(medium, method) -> None:
 def solve_light(medium, light, method, progress=None, channel: int = 0, warm: DomainSolution | None = None
                 ) -> DomainSolution:
     """Build the light's domain, resample the medium (colour ``channel``) into it, walk unit
-    power and, with the diffusion stage, diffuse what was handed over.
+    power and, with the diffusion stage, diffuse what was handed over. Light transport sees
+    ``medium.transport_medium()`` (voxels thicker than MAX_TRANSPORT_DEPTH mean free paths
+    capped); the unscattered light (``direct``) the medium itself.
 
     ``warm``: the same light's domain solution from an earlier frame (see :func:`solve`): its
     diffusion fluence is the conjugate-gradient solve's initial guess, resampled if the grid
@@ -42,14 +45,18 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     The walk always starts cold (see :func:`solve`)."""
     check_decay(medium, method)
     t0 = time.perf_counter()
+    transport = medium.transport_medium()
     domain = light.domain(medium, method)
-    optics = domain.resample(medium, channel)
+    optics = domain.resample(transport, channel)
     t1 = time.perf_counter()
     walk = domain.walk(optics, method, progress)
+    if transport is not medium and walk.direct is not None:
+        # the unscattered light crosses the true density (docs/METHOD.md, "Optically thick voxels")
+        replace_direct(walk, domain.direct_fluence(domain.resample(medium, channel)[0]))
     ds = DomainSolution(light, domain, walk, t1 - t0, channel)
     if walk.handed is not None:         # the diffusion stage (not for a sun's six-ordinate walk)
         t2 = time.perf_counter()
-        hand = domain.hand_over(walk, optics, medium, method, channel)
+        hand = domain.hand_over(walk, optics, transport, method, channel)
         x0 = None
         if warm is not None:
             prev = warm.result.diffusion

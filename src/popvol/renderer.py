@@ -97,8 +97,10 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         own = solution.unscattered
         grid, spherical = field_bundles(solution)
         eye = np.asarray(cam.origin, np.float64)
-        gathered = gather(medium, *only_lights(own, lights, grid, spherical), eye, seen, m.gather,
-                          gather_factor(med, m.gather_resolution), gather_cap(cam))
+        # the gather is light transport: it sees the capped density, as the walk did
+        transport = med.transport_medium()
+        gathered = gather((transport.density,) + medium[1:], *only_lights(own, lights, grid, spherical), eye, seen,
+                          m.gather, gather_factor(transport, m.gather_resolution), gather_cap(cam))
         if not own.all():                 # the others' light, all of it, from their lobes
             others = lights[:2] + (lights[2] * ~own[:, None],) + lights[3:]
             in_scattering_source(medium, others, grid, spherical, eye, seen, gathered)

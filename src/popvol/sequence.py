@@ -691,9 +691,6 @@ def _write_frame(sc, frame, image, exr_path, img, solution, seconds, t0) -> dict
         write_image(exr_path, img)
     info = solution.stats()
     warnings = []
-    thick = sc.medium.thickness_warning()
-    if thick:
-        warnings.append(thick)
     for d in info["domains"]:
         if not d.get("converged", True):
             warnings.append(f"frame {frame}: light {d['light']} stopped after {d['iterations']} iterations with "

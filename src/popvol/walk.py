@@ -122,6 +122,18 @@ def direct_fluence(sigma_t: np.ndarray, h: float) -> np.ndarray:
     return np.exp(-tau).astype(np.float32)
 
 
+def replace_direct(result: WalkResult, direct: np.ndarray) -> None:
+    """Swap the unscattered light the walk's fields hold for ``direct`` (float32, the domain's
+    shape), keeping the scattered rest: phi - direct + direct' and the same for phi a (the
+    unscattered lobe has a = 1). Used where the walk solved a capped medium
+    (medium.transport_medium) and the unscattered light crosses the true one. In place for phi
+    a, so a six-ordinate walk's flux (whose first row it is) follows."""
+    change = direct - result.direct
+    result.phi = result.phi + change
+    result.phia += change
+    result.direct = direct
+
+
 def default_max_iterations(shape, solver: str) -> int:
     if solver in ("jacobi", "binned", "ordinates"):
         return 40 * int(sum(shape))

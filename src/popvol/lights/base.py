@@ -63,6 +63,10 @@ class LightDomain(Protocol):
         """Walk unit power (irradiance or intensity) from the light: a results.WalkResult, with
         ``direct`` (the unscattered part) and, when method.isotropic is "diffusion", ``handed``."""
 
+    def direct_fluence(self, sigma_t: np.ndarray) -> np.ndarray | None:
+        """The light's unscattered fluence per unit power at the cells (float32, the domain's
+        shape) through extinction ``sigma_t``; None for a light without one."""
+
     def hand_over(self, walk, optics: Optics, medium, method, channel: int) -> HandOver:
         """The walk's handed-over light on a rectilinear grid for the diffusion stage."""
 

@@ -233,12 +233,15 @@ class SphericalDomain:
         budget.reflected, budget.transmitted, budget.side = (float(x) for x in tally[:3])
         budget.absorbed += float(tally[KP.ABSORBED])
         budget.in_flight = in_flight
-        # the unscattered light, r^2 phi_dir = exp(-tau) per unit intensity (tau along the ray
-        # from the light, which crosses the shells along k: the same sum as a sun's along its axis)
-        direct = (direct_fluence(sigma_t, self.dr) / (self.radii ** 2)[:, None, None]).astype(np.float32)
         return WalkResult(phi, phia, budget, it, it * R.size, in_flight / budget.injected,
-                          in_flight <= target, time.perf_counter() - t0, direct=direct,
+                          in_flight <= target, time.perf_counter() - t0, direct=self.direct_fluence(sigma_t),
                           handed=Q if handover is not None else None)
+
+    def direct_fluence(self, sigma_t):
+        """The unscattered fluence at the cell centres per unit intensity, float32 (the domain's
+        shape): r^2 phi_dir = exp(-tau), tau along the ray from the light, which crosses the
+        shells along k (the same sum as a sun's along its axis)."""
+        return (direct_fluence(sigma_t, self.dr) / (self.radii ** 2)[:, None, None]).astype(np.float32)
 
     def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
         """The handed-over power on a world-aligned rectilinear grid over the medium

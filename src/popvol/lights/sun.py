@@ -119,9 +119,14 @@ class SunDomain(DirectionalDomain):
         injection = np.full(self.shape[1:], self.h * self.h, np.float32)
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
                           method.tolerance, method.max_iterations, progress=progress, handover=handover)
-        # a collimated sun's unscattered light, lit with its own lobe by the renderer
-        result.direct = direct_fluence(sigma_t, self.h) if self.a0 == 1.0 else None
+        result.direct = self.direct_fluence(sigma_t)
         return result
+
+    def direct_fluence(self, sigma_t):
+        """A collimated sun's unscattered fluence at the cell centres per unit irradiance
+        (float32, the domain's shape; Eq. 22), lit with its own lobe by the renderer; None for
+        an environment's light (a0 < 1)."""
+        return direct_fluence(sigma_t, self.h) if self.a0 == 1.0 else None
 
     def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
         """The diffusion grid is the domain itself, in blocks of diffusion_factor^3 cells."""
