@@ -32,12 +32,12 @@ def check_decay(medium, method) -> None:
                           f"Eq. 12) needs g >= 0, got g = {medium.g_min:g}; use decay = 'poisson'")
 
 
-def solve_light(medium, light, method, progress=None, channel: int = 0, warm: DomainSolution | None = None
-                ) -> DomainSolution:
+def solve_light(medium, light, method, progress=None, channel: int = 0, warm: DomainSolution | None = None,
+                transport=None) -> DomainSolution:
     """Build the light's domain, resample the medium (colour ``channel``) into it, walk unit
     power and, with the diffusion stage, diffuse what was handed over. Light transport sees
-    ``medium.transport_medium()`` (voxels thicker than MAX_TRANSPORT_DEPTH mean free paths
-    capped); the unscattered light (``direct``) the medium itself.
+    ``transport`` (None: ``medium.transport_medium()``, voxels thicker than MAX_TRANSPORT_DEPTH
+    mean free paths capped); the unscattered light (``direct``) the medium itself.
 
     ``warm``: the same light's domain solution from an earlier frame (see :func:`solve`): its
     diffusion fluence is the conjugate-gradient solve's initial guess, resampled if the grid
@@ -45,7 +45,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     The walk always starts cold (see :func:`solve`)."""
     check_decay(medium, method)
     t0 = time.perf_counter()
-    transport = medium.transport_medium()
+    transport = medium.transport_medium() if transport is None else transport
     domain = light.domain(medium, method)
     optics = domain.resample(transport, channel)
     t1 = time.perf_counter()
@@ -202,6 +202,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
         old = {(ds.light.key(), ds.channel): ds for ds in reuse.domains}
     prev_domains, cold_note = warm_domains(warm, scene)
     needed = voxels_seen(med.density)
+    transport = med.transport_medium()      # once for every light and channel
     sols = []
     seconds = dict.fromkeys(("resample", "propagate", "diffusion", "fields"), 0.0)
     for i, light in enumerate(scene.lights):
@@ -226,7 +227,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                     w, note = None, f"cold: previous light {i} is a {w.light.type} light"
                 elif w.result.diffusion is None:
                     w, note = None, "cold: previous domain has no diffusion solve"
-            ds = solve_light(med, light, scene.method, cb, ch, w)
+            ds = solve_light(med, light, scene.method, cb, ch, w, transport)
             if warm is not None and w is None:
                 ds.warm_note = note
             ds.light_index = i
