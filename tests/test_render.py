@@ -14,7 +14,7 @@ from popvol.lights import DirectionalLight, PointLight
 from popvol.medium import Medium
 from popvol.pipeline import solve
 from popvol.kernels.render import MAX_SEGMENT_DEPTH
-from popvol.renderer import BLOCK, densest_in_blocks, render, render_inputs
+from popvol.renderer import BLOCK, densest_in_blocks, render, render_inputs, skip_blocks
 from popvol.scene import Method, Scene
 
 
@@ -314,6 +314,51 @@ def test_empty_space_skipping_changes_no_pixel():
         skipped = render(scene, sol, combined=combined)
         np.testing.assert_array_equal(skipped, render(scene, sol, combined=combined, skip=False))
         assert skipped.max() > 0
+
+
+def two_blobs(n=64, peak_tau=4.0):
+    """Two small Gaussian blobs at opposite corners of the unit cube, 0 below 5 % of the peak:
+    rays between them cross many empty blocks."""
+    x = (np.arange(n) + 0.5) / n
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    rho = sum(np.exp(-((X - c) ** 2 + (Y - c) ** 2 + (Z - c) ** 2) / (2 * 0.06**2)) for c in (0.2, 0.75))
+    rho = np.where(rho > 0.05, rho, 0.0).astype(np.float32)
+    scale = peak_tau / (0.06 * np.sqrt(2 * np.pi))
+    return Medium(rho, 1.0 / n, np.full(3, 0.5 / n), scale=scale, albedo=0.9, g=0.5, source="two blobs")
+
+
+@pytest.mark.parametrize("peak_tau", [4.0, 400.0])
+def test_skipping_many_empty_blocks_at_once_changes_no_pixel(peak_tau):
+    """Two blobs far apart in a 64^3 grid: an empty block vouches for the empty blocks up to
+    n - 1 around it (renderer.skip_blocks), and a ray jumps over all of them; the image is
+    bitwise that of marching every sample, light by light and with the combined source, and
+    also where the blobs are so dense that the march splits its segments (peak_tau 400)."""
+    scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=40, h=24))
+    scene.camera = Camera([1.6, 1.3, 2.2], [0.45, 0.45, 0.45], [0, 1, 0], 40.0, 40, 24)
+    scene.medium = two_blobs(peak_tau=peak_tau)
+    blocks = render_inputs(scene, solve(scene))[0][9]
+    assert blocks.min() <= -3                          # some blocks vouch for a cube 5 blocks wide
+    sol = solve(scene)
+    for combined in (True, False):
+        skipped = render(scene, sol, combined=combined)
+        np.testing.assert_array_equal(skipped, render(scene, sol, combined=combined, skip=False))
+        assert skipped.max() > 0
+
+
+def test_skip_blocks_holds_the_distance_to_the_nearest_occupied_block(rng):
+    """renderer.skip_blocks against its brute-force twin (the Chebyshev distance over all pairs
+    of blocks, capped at ``reach``) on random sparse grids of blocks, one with no occupied block."""
+    for shape, fill, reach in (((7, 5, 9), 0.05, 16), ((12, 12, 12), 0.01, 4), ((3, 4, 5), 0.0, 16)):
+        densest = np.where(rng.random(shape) < fill, rng.random(shape) + 0.1, 0.0).astype(np.float32)
+        np.testing.assert_array_equal(skip_blocks(densest, reach), ref.skip_blocks(densest, reach))
+
+
+def test_densest_in_blocks_kernel_equals_numpy_twin(rng):
+    """kernels.sampling.densest_near_blocks (through renderer.densest_in_blocks) against the
+    twin's slices, for blocks of 2, 3 and 8 voxels on grids whose sides are not multiples."""
+    rho = np.where(rng.random((21, 10, 17)) < 0.02, rng.random((21, 10, 17)), 0.0).astype(np.float32)
+    for block in (2, 3, 8):
+        np.testing.assert_array_equal(densest_in_blocks(rho, block), ref.densest_in_blocks(rho, block))
 
 
 def test_blocks_hold_the_largest_density_near_them(rng):

@@ -683,3 +683,28 @@ def upsample(coarse: np.ndarray, factor: int, shape: tuple) -> np.ndarray:
         lower = np.take(out, i0, axis=axis)
         out = lower + (np.take(out, i1, axis=axis) - lower) * w
     return out
+
+
+def densest_in_blocks(density: np.ndarray, block: int) -> np.ndarray:
+    """Twin of kernels.sampling.densest_near_blocks (through renderer.densest_in_blocks): float32
+    (ceil(nx / block), ...), the largest density over voxels [block b - 1, block (b + 1) + 1] of
+    each axis, within the grid, by slicing."""
+    m = density
+    for axis in range(3):
+        n = m.shape[axis]
+        parts = [np.take(m, np.arange(max(b - 1, 0), min(b + block + 2, n)), axis=axis).max(axis=axis, keepdims=True)
+                 for b in range(0, n, block)]
+        m = np.concatenate(parts, axis=axis)
+    return np.ascontiguousarray(m, np.float32)
+
+
+def skip_blocks(densest: np.ndarray, reach: int) -> np.ndarray:
+    """Twin of renderer.skip_blocks: float32, ``densest`` where > 0, else minus the Chebyshev
+    distance (in blocks) to the nearest block > 0, at most ``reach``, by brute force over all
+    pairs of blocks."""
+    occupied = np.argwhere(densest > 0)
+    out = densest.astype(np.float32).copy()
+    for b in np.argwhere(densest <= 0):
+        n = np.abs(occupied - b).max(axis=1).min() if len(occupied) else reach
+        out[tuple(b)] = -min(n, reach)
+    return out

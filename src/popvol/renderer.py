@@ -8,7 +8,7 @@ import numpy as np
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, gathered_source
 from .kernels.render import render_kernel, substeps
-from .kernels.sampling import block_means, upsample_blocks
+from .kernels.sampling import block_means, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import solve, voxels_seen
 from .results import Solution
@@ -17,6 +17,9 @@ from .scene import Scene
 
 #: voxels per edge of a block of the coarse grid (empty-space skipping, splitting thick segments)
 BLOCK = 8
+#: an empty block of the coarse grid vouches for the blocks up to this many (less one) around it
+#: (renderer.skip_blocks), so a ray jumps over up to 2 SKIP_REACH - 1 blocks at once
+SKIP_REACH = 16
 #: samples nearer the camera than this many (smallest) voxels are lit light by light, not from
 #: the combined source: there the view direction turns by more than 1/32 rad across a voxel
 NEAR_VOXELS = 32.0
@@ -80,7 +83,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
                           else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
     seen = voxels_seen(med.density)
-    blocks = densest_in_blocks(med.density, BLOCK)
+    blocks = skip_blocks(densest_in_blocks(med.density, BLOCK))
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
               med.origin, med.voxel_size, lo, hi, blocks, BLOCK)
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
@@ -327,13 +330,32 @@ def densest_in_blocks(density: np.ndarray, block: int) -> np.ndarray:
     to spare (the stencil of such a point reads voxels [block b, block (b + 1)] only), so the
     march skips the block; elsewhere it bounds the density at every such point, and the march
     splits its segments there by it (kernels/render.py, substeps)."""
-    m = density
-    for axis in range(3):             # the largest over voxels [block b - 1, block (b + 1) + 1]
-        n = m.shape[axis]
-        parts = [np.take(m, np.arange(max(b - 1, 0), min(b + block + 2, n)), axis=axis).max(axis=axis, keepdims=True)
-                 for b in range(0, n, block)]
-        m = np.concatenate(parts, axis=axis)
-    return np.ascontiguousarray(m, np.float32)
+    out = np.zeros(tuple(-(-n // block) for n in density.shape), np.float32)
+    densest_near_blocks(np.ascontiguousarray(density, np.float32), block, out)
+    return out
+
+
+def skip_blocks(densest: np.ndarray, reach: int = SKIP_REACH) -> np.ndarray:
+    """float32 of ``densest``'s shape (:func:`densest_in_blocks`), the coarse grid the march
+    reads (kernels/render.py, block_at): ``densest`` where it is > 0; at an empty block, -n with
+    n the Chebyshev distance (in blocks) to the nearest non-empty block, at most ``reach`` (and
+    ``reach`` where there is none), so every block within n - 1 of it is empty too and a ray
+    in it may jump to where it leaves that cube of blocks."""
+    occupied = densest > 0
+    distance = np.where(occupied, 0, reach).astype(np.float32)
+    near = occupied
+    for n in range(1, reach):         # near: within n of an occupied block (a cube, so axis by axis)
+        for axis in range(3):
+            grown = near.copy()
+            lo, hi = [slice(None)] * 3, [slice(None)] * 3
+            lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+            grown[tuple(lo)] |= near[tuple(hi)]
+            grown[tuple(hi)] |= near[tuple(lo)]
+            near = grown
+        distance[near & (distance == reach)] = n
+        if near.all():
+            break
+    return np.where(occupied, densest, -distance).astype(np.float32)
 
 
 def background_map(scene: Scene) -> np.ndarray:

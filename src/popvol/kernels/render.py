@@ -31,7 +31,8 @@ Two shortcuts, neither changing which samples are taken:
   image changes slightly (docs/METHOD.md, "Rendering"); samples nearer the camera than ``near``,
   where the view direction turns fast across a voxel, are lit light by light.
 - Empty-space skipping. A coarse grid holds each block's largest density within one voxel of
-  it; a sample in an empty block jumps to the first sample past the block. Samples sit at
+  it, and at an empty block how far the empty blocks around it reach (renderer.skip_blocks);
+  a sample in an empty block jumps to the first sample past them. Samples sit at
   t0 + (i + jt) step, not at an accumulated t, so the jump leaves every other sample where it
   was: the image is bitwise the same without skipping.
 
@@ -406,31 +407,46 @@ def medium_at(medium, x):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _block_axis(x, o, h, n, size, n_blocks, d):
+def _block_index(x, o, h, n, size):
     """Along one axis: the block holding the world coordinate x (grid origin o, voxel h, n
-    voxels, blocks of ``size`` voxels, ``n_blocks`` of them; indices clamped to the grid as the
-    trilinear stencil is) and the distance along the ray (direction component d) to the block's
-    face it leaves by (1e300 for the grid's outer blocks, which reach to the box's face)."""
-    b = int(min(max((x - o) / h, 0.0), n - 1.0)) // size
-    if d > 0.0 and b < n_blocks - 1:
-        return b, (o + size * (b + 1) * h - x) / d
-    if d < 0.0 and b > 0:
-        return b, (o + size * b * h - x) / d
-    return b, 1e300
+    voxels, blocks of ``size`` voxels; the voxel index clamped to the grid as the trilinear
+    stencil's is)."""
+    return int(min(max((x - o) / h, 0.0), n - 1.0)) // size
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _block_exit(x, o, h, size, n_blocks, b, r, d):
+    """Along one axis: the distance along the ray (direction component d) from the world
+    coordinate x, in block b, to the face by which it leaves blocks b - r .. b + r (1e300 where
+    it would leave by the grid's outer blocks, which reach to the box's face)."""
+    if d > 0.0 and b + r < n_blocks - 1:
+        return (o + size * (b + r + 1) * h - x) / d
+    if d < 0.0 and b - r > 0:
+        return (o + size * (b - r) * h - x) / d
+    return 1e300
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def block_at(medium, x, d):
-    """x's block of the coarse grid: (the largest density within one voxel of it, the distance
-    along the ray d to where the ray leaves it); (-1, -1) without the grid (shape (0, 0, 0))."""
+    """x's block of the coarse grid (renderer.skip_blocks): (its value, the distance along the
+    ray d to where the ray leaves the blocks the value vouches for). A value > 0 is the largest
+    density within one voxel of the block, and those blocks are the block itself; a value
+    -n < 0 says the block is empty and so is every block within n - 1 of it (Chebyshev
+    distance, in blocks), and those are that cube of blocks. (0, 1e300) without the grid (shape
+    (0, 0, 0)): no block is empty or dense."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     if blocks.shape[0] == 0:
-        return -1.0, -1.0
+        return 0.0, 1e300
     s = density.shape
-    bx, ex = _block_axis(x[0], origin[0], voxel[0], s[0], block, blocks.shape[0], d[0])
-    by, ey = _block_axis(x[1], origin[1], voxel[1], s[1], block, blocks.shape[1], d[1])
-    bz, ez = _block_axis(x[2], origin[2], voxel[2], s[2], block, blocks.shape[2], d[2])
-    return float(blocks[bx, by, bz]), max(min(ex, ey, ez), 0.0)
+    bx = _block_index(x[0], origin[0], voxel[0], s[0], block)
+    by = _block_index(x[1], origin[1], voxel[1], s[1], block)
+    bz = _block_index(x[2], origin[2], voxel[2], s[2], block)
+    value = float(blocks[bx, by, bz])
+    r = int(-value) - 1 if value < 0.0 else 0
+    ex = _block_exit(x[0], origin[0], voxel[0], block, blocks.shape[0], bx, r, d[0])
+    ey = _block_exit(x[1], origin[1], voxel[1], block, blocks.shape[1], by, r, d[1])
+    ez = _block_exit(x[2], origin[2], voxel[2], block, blocks.shape[2], bz, r, d[2])
+    return value, max(min(ex, ey, ez), 0.0)
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -495,17 +511,20 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     L2, T0, T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md
     Eq. 24), and the view transmittance T_v at the exit, 0 once it fell below T_MIN.
 
-    L_s / sigma_s: :func:`light_sample`. A segment in a block of the coarse grid so dense that
-    it would be optically thicker than MAX_SEGMENT_DEPTH is split into :func:`substeps` equal
-    parts, each sampled at offset jt, so that a lit skin thinner than a segment is not stepped
-    over (segments elsewhere are as they were; ``dense`` says whether any block is that dense,
-    so an optically thin medium's march never looks the blocks up where it has density). With
-    ``skip``, samples in empty blocks (no density within one voxel) jump to the first sample past
-    the block: their density is 0, so they add nothing, and the samples taken are the same."""
+    L_s / sigma_s: :func:`light_sample`. The coarse grid (:func:`block_at`) is read once per
+    block the ray enters, not per sample. A segment in a block so dense that it would be
+    optically thicker than MAX_SEGMENT_DEPTH is split into :func:`substeps` equal parts, each
+    sampled at offset jt, so that a lit skin thinner than a segment is not stepped over
+    (segments elsewhere are as they were; ``dense`` says whether any block is that dense). With
+    ``skip``, a sample in an empty block jumps to the first sample past the empty blocks around
+    it that the grid vouches for: their density is 0, so they add nothing, and the samples
+    taken are the same."""
     t0, t1, step, jt, skip, dense = segments
     L = (0.0, 0.0, 0.0)
     T = (1.0, 1.0, 1.0)
     i = 0
+    rho_max = 0.0                   # the densest voxel near the block of the last lookup
+    t_leave = -1.0                  # where the ray leaves that block, if it holds density
     while True:
         t = t0 + i * step           # not accumulated: skipping samples leaves the others as they are
         if t >= t1:
@@ -514,28 +533,24 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
         ts = t + jt * ds
         i += 1
         x = (o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2])
-        corners, rho, g, sigma_t, albedo = medium_at(medium, x)
-        k = 1
-        if rho <= 0.0 or dense:
+        if ts >= t_leave:           # a block not looked up yet
             rho_max, exit = block_at(medium, x, d)
-            if rho_max == 0.0:      # an empty block
+            if rho_max < 0.0:       # an empty block, and maybe more around it
                 if skip:
                     if ts + exit >= t1:
                         break
-                    # the first sample at or past the block's exit (the blocks hold one voxel of margin)
+                    # the first sample at or past the exit (the blocks hold one voxel of margin)
                     i = max(i, int(math.ceil((ts + exit - t0) / step - jt)))
                 continue
-            if dense:
-                k = substeps(medium, rho_max, ds)
-            if k == 1 and rho <= 0.0:
-                continue
+            t_leave = ts + exit
+        k = substeps(medium, rho_max, ds) if dense else 1
         for j in range(k):
             if k > 1:
                 ts = t + (j + jt) * ds / k
                 x = (o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2])
-                corners, rho, g, sigma_t, albedo = medium_at(medium, x)
-                if rho <= 0.0:
-                    continue
+            corners, rho, g, sigma_t, albedo = medium_at(medium, x)
+            if rho <= 0.0:
+                continue
             ls = light_sample(lights, grid, spherical, view, x, d, corners, g, ts)
             L, T = march_segments(L, T, sigma_t, ds / k, albedo, ls)
             if max(T[0], T[1], T[2]) < T_MIN:
@@ -553,7 +568,8 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         the albedo of channel c is albedo * albedo_rgb[c]; origin, voxel float64 (3,): the
         centre of voxel (0, 0, 0) and the voxel size; lo, hi float64 (3,): the medium's box;
         blocks float32 (ceil(nx / block), ...): the largest density within one voxel of each
-        block of block^3 voxels (0: empty; shape (0, 0, 0): no grid); block int.
+        block of block^3 voxels, or at an empty block -n, n its Chebyshev distance in blocks
+        to the nearest non-empty one (renderer.skip_blocks; shape (0, 0, 0): no grid); block int.
     lights: is_point bool (n_lights,); direction float64 (n_lights, 3), the direction a sun's
         light travels; power float64 (n_lights, 3), RGB irradiance or intensity; position
         float64 (n_lights, 3), a point light's.

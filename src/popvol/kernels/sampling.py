@@ -167,3 +167,28 @@ def upsample_blocks(coarse, factor, needed, out):
                     c10 = coarse[i1, j0, k0, ch] * (1 - fz) + coarse[i1, j0, k1, ch] * fz
                     c11 = coarse[i1, j1, k0, ch] * (1 - fz) + coarse[i1, j1, k1, ch] * fz
                     out[i, j, k, ch] = (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def densest_near_blocks(density, block, out):
+    """out float32 (ceil(nx / block), ...): the largest density within one voxel of each block
+    of block^3 voxels, i.e. over voxels [block b - 1, block (b + 1) + 1] along each axis, within
+    the grid (renderer.densest_in_blocks). Voxel j lies in blocks max(0, (j - 2) // block) ..
+    (j + 1) // block of its axis. NumPy twin: tests/twins.py (densest_in_blocks)."""
+    nx, ny, nz = density.shape
+    bx, by, bz = out.shape
+    for b in nb.prange(bx):             # one slab of blocks each: no two threads write one block
+        acc = np.zeros((by, bz), np.float32)
+        for i in range(max(block * b - 1, 0), min(block * (b + 1) + 2, nx)):
+            for j in range(ny):
+                j_lo = max(0, (j - 2) // block)
+                j_hi = min(by - 1, (j + 1) // block)
+                for k in range(nz):
+                    v = density[i, j, k]
+                    if v <= 0.0:
+                        continue
+                    for q in range(max(0, (k - 2) // block), min(bz - 1, (k + 1) // block) + 1):
+                        for p in range(j_lo, j_hi + 1):
+                            if v > acc[p, q]:
+                                acc[p, q] = v
+        out[b] = acc
