@@ -344,14 +344,8 @@ def skip_blocks(densest: np.ndarray, reach: int = SKIP_REACH) -> np.ndarray:
     occupied = densest > 0
     distance = np.where(occupied, 0, reach).astype(np.float32)
     near = occupied
-    for n in range(1, reach):         # near: within n of an occupied block (a cube, so axis by axis)
-        for axis in range(3):
-            grown = near.copy()
-            lo, hi = [slice(None)] * 3, [slice(None)] * 3
-            lo[axis], hi[axis] = slice(0, -1), slice(1, None)
-            grown[tuple(lo)] |= near[tuple(hi)]
-            grown[tuple(hi)] |= near[tuple(lo)]
-            near = grown
+    for n in range(1, reach):         # near: within n of an occupied block, grown one block a step
+        near = voxels_seen(near)
         distance[near & (distance == reach)] = n
         if near.all():
             break
