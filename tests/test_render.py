@@ -345,6 +345,26 @@ def test_skipping_many_empty_blocks_at_once_changes_no_pixel(peak_tau):
         assert skipped.max() > 0
 
 
+def test_values_of_the_density_are_made_once_per_density_array():
+    """Medium.derived: the renderer's coarse grid and seen voxels are made once per density
+    array (a second frame gets the same arrays, equal to making them anew), anew for a medium
+    whose density is another array, and a medium made by dataclasses.replace does not share
+    the first one's values."""
+    scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=16, h=10))
+    scene.medium = two_blobs(n=32)
+    sol = solve(scene)
+    first, second = render_inputs(scene, sol)[0][9], render_inputs(scene, sol)[0][9]
+    assert first is second
+    np.testing.assert_array_equal(first, skip_blocks(densest_in_blocks(scene.medium.density, BLOCK)))
+    assert scene.medium.derived("seen", lambda d: None) is not None
+    thicker = dataclasses.replace(scene.medium, scale=scene.medium.scale * 2)
+    assert thicker.derived("seen", lambda d: "made anew") == "made anew"
+    other = dataclasses.replace(scene.medium, density=scene.medium.density[::-1].copy())
+    mirrored = render_inputs(dataclasses.replace(scene, medium=other), sol)[0][9]
+    np.testing.assert_array_equal(mirrored, skip_blocks(densest_in_blocks(other.density, BLOCK)))
+    assert not np.array_equal(mirrored, first)
+
+
 def test_skip_blocks_holds_the_distance_to_the_nearest_occupied_block(rng):
     """renderer.skip_blocks against its brute-force twin (the Chebyshev distance over all pairs
     of blocks, capped at ``reach``) on random sparse grids of blocks, one with no occupied block."""

@@ -74,6 +74,8 @@ class Medium:
     g: float | np.ndarray = 0.0
     source: str = "<array>"
     _field: str = field(default="medium", repr=False)
+    # values that depend on the density alone, each with the density array it was made from
+    _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         d = np.asarray(self.density)
@@ -164,6 +166,18 @@ class Medium:
         """Largest sigma_t times the voxel's shortest side: mean free paths across one voxel."""
         with np.errstate(over="ignore"):
             return float(self.scale.max() * float(self.density.max()) * float(self.voxel_size.min()))
+
+    def derived(self, name: str, make):
+        """``make(self.density)``: a value that depends on the density alone (the voxels the
+        renderer reads, the march's coarse grid), made once per density array and kept with
+        the medium, so that every frame of a still medium does not make it again. A medium
+        whose ``density`` is replaced by another array makes it anew; densities are never
+        changed in place."""
+        made = self._derived.get(name)
+        if made is None or made[0] is not self.density:
+            made = (self.density, make(self.density))
+            self._derived[name] = made
+        return made[1]
 
     def transport_medium(self) -> "Medium":
         """The medium light transport solves (docs/METHOD.md, "Optically thick voxels"): this

@@ -201,7 +201,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     if reuse is not None and reuse.key == key:
         old = {(ds.light.key(), ds.channel): ds for ds in reuse.domains}
     prev_domains, cold_note = warm_domains(warm, scene)
-    needed = voxels_seen(med.density)
+    needed = med.derived("seen", voxels_seen)
     transport = med.transport_medium()      # once for every light and channel
     sols = []
     seconds = dict.fromkeys(("resample", "propagate", "diffusion", "fields"), 0.0)

@@ -82,8 +82,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
                           else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
-    seen = voxels_seen(med.density)
-    blocks = skip_blocks(densest_in_blocks(med.density, BLOCK))
+    seen = med.derived("seen", voxels_seen)
+    blocks = med.derived("skip_blocks", lambda density: skip_blocks(densest_in_blocks(density, BLOCK)))
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
               med.origin, med.voxel_size, lo, hi, blocks, BLOCK)
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
