@@ -118,6 +118,12 @@ def voxels_seen(density: np.ndarray) -> np.ndarray:
     return m
 
 
+def seen_voxels(medium) -> np.ndarray:
+    """:func:`voxels_seen` of the medium's density, made once per density array and shared by
+    propagation and every render of the medium (``Medium.derived``)."""
+    return medium.derived("seen", voxels_seen)
+
+
 def medium_key(medium) -> tuple:
     """What propagation depends on in a medium: grids by identity (a Medium made from another
     with ``dataclasses.replace`` shares them), numbers by value."""
@@ -201,7 +207,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     if reuse is not None and reuse.key == key:
         old = {(ds.light.key(), ds.channel): ds for ds in reuse.domains}
     prev_domains, cold_note = warm_domains(warm, scene)
-    needed = med.derived("seen", voxels_seen)
+    needed = seen_voxels(med)
     transport = med.transport_medium()      # once for every light and channel
     sols = []
     seconds = dict.fromkeys(("resample", "propagate", "diffusion", "fields"), 0.0)

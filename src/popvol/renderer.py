@@ -10,7 +10,7 @@ from .kernels.gather import emission_lobes, gathered_source
 from .kernels.render import render_kernel, substeps
 from .kernels.sampling import block_means, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
-from .pipeline import solve, voxels_seen
+from .pipeline import seen_voxels, solve, voxels_seen
 from .results import Solution
 from .scene import Scene
 
@@ -82,7 +82,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel
                           else (np.ones((1, 1, 1), np.float32), np.asarray(med.albedo, np.float64)))
-    seen = med.derived("seen", voxels_seen)
+    seen = seen_voxels(med)
     blocks = med.derived("skip_blocks", lambda density: skip_blocks(densest_in_blocks(density, BLOCK)))
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
               med.origin, med.voxel_size, lo, hi, blocks, BLOCK)
