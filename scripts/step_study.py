@@ -2,12 +2,13 @@
 what each step changes in the image, in the metric of ``popvol compare``, and what it costs
 (run from the repository root, with ../shared beside the checkout):
 
-    python scripts/step_study.py [--steps 0.5 1 2] [--width 320] [--height 180] [--scenes NAME ...]
-                                 [--seeds N]
+    python scripts/step_study.py [--steps 0.5 1 2] [--max-steps 8] [--width 320] [--height 180]
+                                 [--scenes NAME ...] [--seeds N]
 
 Every scene of examples/ that loads here, and the regression fixture, is solved once at its own
-method resolution and rendered at each step and at the finest step / 4 (the reference, also
-jittered). Columns: relMSE on the pixels that see the medium, brightness ratio overall and in
+method resolution and rendered at each step, with each ``--max-steps`` (method.max_step: how
+many steps one sample may span in thin blocks), and at the finest step / 4 with one sample
+per step (the reference, also jittered). Columns: relMSE on the pixels that see the medium, brightness ratio overall and in
 the brightest 10 %, and the render's seconds (best of 3, 2 cores). With ``--seeds N`` each
 step is rendered with method.seed 0 .. N-1 (other sub-pixel and along-ray offsets) and the
 columns are the mean and standard deviation over the seeds: popvol's own 1-spp sampling noise.
@@ -33,8 +34,8 @@ def scenes(names):
     return [p for p in paths if not names or p.stem in names]
 
 
-def render(scene, solution, step, seed=0, repeat=3):
-    s = dataclasses.replace(scene, method=dataclasses.replace(scene.method, step=step, seed=seed))
+def render(scene, solution, step, seed=0, repeat=3, max_step=1):
+    s = dataclasses.replace(scene, method=dataclasses.replace(scene.method, step=step, seed=seed, max_step=max_step))
     best = float("inf")
     for _ in range(repeat):
         t0 = time.perf_counter()
@@ -46,6 +47,7 @@ def render(scene, solution, step, seed=0, repeat=3):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=float, nargs="+", default=[0.5, 1.0, 2.0])
+    ap.add_argument("--max-steps", type=int, nargs="+", default=[popvol.Method().max_step])
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=180)
     ap.add_argument("--scenes", nargs="+", default=None, help="example names (default: all, and the fixture)")
@@ -53,7 +55,7 @@ def main() -> None:
     args = ap.parse_args()
     fine = min(args.steps) / 4
     print(f"reference: step {fine:g} voxel; {args.width}x{args.height}")
-    print(f"{'scene':22s} {'step':>5s} {'relMSE':>9s} {'bright':>8s} {'top10%':>8s} {'render s':>9s}")
+    print(f"{'scene':22s} {'step':>5s} {'max':>3s} {'relMSE':>9s} {'bright':>8s} {'top10%':>8s} {'render s':>9s}")
     for path in scenes(args.scenes):
         try:
             scene = popvol.load_scene(path, width=args.width, height=args.height)
@@ -64,17 +66,19 @@ def main() -> None:
         ref, _ = render(scene, solution, fine)
         mask = metrics.medium_mask(ref, scene)
         for step in args.steps:
-            rows = []
-            for seed in range(args.seeds):
-                image, seconds = render(scene, solution, step, seed, 3 if seed == 0 else 1)
-                rows.append((metrics.relmse(image, ref, mask), metrics.brightness_ratio(image, ref, mask),
-                             metrics.band_ratios(image, ref, mask)["bright"], seconds))
-            r = np.array(rows)
-            if args.seeds == 1:
-                print(f"{path.stem:22s} {step:5g} {r[0, 0]:9.2e} {r[0, 1]:8.5f} {r[0, 2]:8.5f} {r[0, 3]:9.3f}")
-            else:
-                print(f"{path.stem:22s} {step:5g} {r[:, 0].mean():9.2e} {r[:, 1].mean():.4f}+-{r[:, 1].std():.4f} "
-                      f"{r[:, 2].mean():.4f}+-{r[:, 2].std():.4f} {r[0, 3]:9.3f}")
+            for max_step in args.max_steps:
+                rows = []
+                for seed in range(args.seeds):
+                    image, seconds = render(scene, solution, step, seed, 3 if seed == 0 else 1, max_step)
+                    rows.append((metrics.relmse(image, ref, mask), metrics.brightness_ratio(image, ref, mask),
+                                 metrics.band_ratios(image, ref, mask)["bright"], seconds))
+                r = np.array(rows)
+                head = f"{path.stem:22s} {step:5g} {max_step:3d}"
+                if args.seeds == 1:
+                    print(f"{head} {r[0, 0]:9.2e} {r[0, 1]:8.5f} {r[0, 2]:8.5f} {r[0, 3]:9.3f}")
+                else:
+                    print(f"{head} {r[:, 0].mean():9.2e} {r[:, 1].mean():.4f}+-{r[:, 1].std():.4f} "
+                          f"{r[:, 2].mean():.4f}+-{r[:, 2].std():.4f} {r[0, 3]:9.3f}")
 
 
 if __name__ == "__main__":

@@ -374,8 +374,9 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
     (``source``, default :func:`in_scattering_source`) by trilinear interpolation, plus the
     point lights' walk lobes; nearer ones, or all without ``combined``, are lit light by light.
     A segment in an 8^3 block whose densest voxel (within one voxel of it) makes it optically
-    thicker than MAX_SEGMENT_DEPTH is split into equal parts, each sampled at its centre."""
-    from popvol.kernels.render import MAX_SEGMENT_DEPTH, MAX_SUBSTEPS
+    thicker than MAX_SEGMENT_DEPTH is split into equal parts, each sampled at its centre; in a
+    block so thin that n steps are at most COARSE_DEPTH thick, one sample spans n steps."""
+    from popvol.kernels.render import COARSE_DEPTH, MAX_SEGMENT_DEPTH, MAX_SUBSTEPS, NEAR_POINT_LIGHT
     from popvol.renderer import BLOCK, NEAR_VOXELS
     med, cam, m = scene.medium, scene.camera, scene.method
     fwd, right, up = cam.basis()
@@ -427,20 +428,47 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
                     Ls += float(diffuse_lobe(pd, J, d, g, solution.lobe_cap[l])) * E
         return Ls
 
+    def block_of(x):
+        """x's 8^3 block and the largest density within one voxel of it."""
+        b = np.clip((x - med.origin) / med.voxel_size, 0, np.asarray(med.shape) - 1).astype(int) // BLOCK
+        lo_v, hi_v = np.maximum(BLOCK * b - 1, 0), BLOCK * (b + 1) + 2
+        return b, float(med.density[lo_v[0]:hi_v[0], lo_v[1]:hi_v[1], lo_v[2]:hi_v[2]].max())
+
     def parts(x, ds):
         """How many parts the segment at x is split into: enough that none is optically thicker
         than MAX_SEGMENT_DEPTH at the largest density within one voxel of x's 8^3 block."""
-        b = np.clip((x - med.origin) / med.voxel_size, 0, np.asarray(med.shape) - 1).astype(int) // BLOCK
-        lo_v, hi_v = np.maximum(BLOCK * b - 1, 0), BLOCK * (b + 1) + 2
-        rho_max = float(med.density[lo_v[0]:hi_v[0], lo_v[1]:hi_v[1], lo_v[2]:hi_v[2]].max())
-        tau = rho_max * float(np.max(med.scale)) * ds
+        tau = block_of(x)[1] * float(np.max(med.scale)) * ds
         return 1 if tau <= MAX_SEGMENT_DEPTH else min(int(np.ceil(tau / MAX_SEGMENT_DEPTH)), MAX_SUBSTEPS)
+
+    def spans(t, ts):
+        """How many steps the sample at ts (of the segment starting at t) spans: as many as make
+        at most COARSE_DEPTH mean free paths at the densest voxel of its block (method.max_step
+        at most), within the block, and within NEAR_POINT_LIGHT of the distance to a point light."""
+        x = cam.origin + ts * d
+        b, rho_max = block_of(x)
+        if m.max_step <= 1 or rho_max <= 0 or t1 - t <= step:
+            return 1
+        tau = rho_max * float(np.max(med.scale)) * step
+        n = m.max_step if tau * m.max_step <= COARSE_DEPTH else int(COARSE_DEPTH / tau)
+        blocks = -(-np.asarray(med.shape) // BLOCK)
+        leave = np.inf                 # the grid's outer blocks reach to the box's faces
+        for a in range(3):
+            if d[a] > 0 and b[a] < blocks[a] - 1:
+                leave = min(leave, (med.origin[a] + BLOCK * (b[a] + 1) * med.voxel_size[a] - x[a]) / d[a])
+            elif d[a] < 0 and b[a] > 0:
+                leave = min(leave, (med.origin[a] + BLOCK * b[a] * med.voxel_size[a] - x[a]) / d[a])
+        n = min(n, int(min((ts + max(leave, 0.0) - t) / step, 1e9)))
+        for l in np.flatnonzero(solution.is_point):
+            n = min(n, int(NEAR_POINT_LIGHT * np.linalg.norm(x - solution.positions[l]) / step))
+        return max(n, 1)
 
     L, Tv, i = np.zeros(3), np.ones(3), 0
     while t0 + i * step < t1:
         t = t0 + i * step          # the kernel's samples: t0 + (i + 1/2) step, the last segment cut at t1
         ds = min(step, t1 - t)
-        i += 1
+        n = spans(t, t + 0.5 * ds)  # one sample for n steps where the medium is thin
+        ds = min(n * step, t1 - t)
+        i += n
         k = parts(cam.origin + (t + 0.5 * ds) * d, ds)
         for j in range(k):         # a segment in an optically thick block: k parts, each sampled
             ts = t + (j + 0.5) * ds / k

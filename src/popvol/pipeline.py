@@ -134,7 +134,7 @@ def medium_key(medium) -> tuple:
 
 
 #: Method fields that only rendering reads: changing them keeps a solution valid.
-RENDER_ONLY = ("step", "spp", "exposure", "tone", "seed", "gather", "gather_resolution")
+RENDER_ONLY = ("step", "max_step", "spp", "exposure", "tone", "seed", "gather", "gather_resolution")
 
 
 def method_key(method) -> tuple:

@@ -36,9 +36,11 @@ Two shortcuts, neither changing which samples are taken:
   t0 + (i + jt) step, not at an accumulated t, so the jump leaves every other sample where it
   was: the image is bitwise the same without skipping.
 
-One refinement that does change samples, only where the medium is optically thick: a segment
-in a block whose densest voxel would make it thicker than MAX_SEGMENT_DEPTH mean free paths is
-split into equal parts, each sampled (:func:`march_ray`).
+Two refinements change the samples, by the optical depth of each block: a segment in a block
+whose densest voxel would make it thicker than MAX_SEGMENT_DEPTH mean free paths is split into
+equal parts, each sampled; in a block so thin that n segments together are at most
+COARSE_DEPTH thick, one sample spans n segments (at most method.max_step, within the block,
+and not near a point light) (:func:`march_ray`).
 
 The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` builds them):
   medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block)
@@ -47,7 +49,7 @@ The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` b
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
   view       (source, near)                                 the combined source, if any
   camera     (origin, basis, tan_half, width, height)
-  march      (step, spp, seed, jitter, skip, dense)
+  march      (step, spp, seed, jitter, skip, dense, coarse)
 (types in :func:`render_kernel`). NumPy twin: tests/twins.py (render_pixel).
 """
 import math
@@ -66,6 +68,10 @@ T_MIN = 1e-4    # stop marching when the view transmittance falls below this (bi
 #: (a lit skin thinner than a segment is sampled, not stepped over: docs/METHOD.md, "Rendering")
 MAX_SEGMENT_DEPTH = 2.0
 MAX_SUBSTEPS = 256      # ... into at most this many parts
+#: one sample spans several segments (method.max_step) only where they are together at most this
+#: many mean free paths thick, and at most NEAR_POINT_LIGHT of the distance to a point light long
+COARSE_DEPTH = 0.5
+NEAR_POINT_LIGHT = 0.125
 G_MAX = 0.9999  # |g A| at most this in f_hg
 # Positions in the bundles, for the helpers of the innermost loops (per sample, light and
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
@@ -192,7 +198,7 @@ def pixel_sample(march, px, py, s):
     """Sample s of pixel (px, py): its sub-pixel offsets (jx, jy) and the offset jt of the
     march's sample points within their segments, each in [0, 1): hashed from the seed, or 1/2
     without jitter (pixel centres and segment midpoints)."""
-    step, spp, seed, jitter, skip, dense = march
+    step, spp, seed, jitter, skip, dense, coarse = march
     if jitter:
         return (hash_uniform(seed, px, py, s, 0), hash_uniform(seed, px, py, s, 1),
                 hash_uniform(seed, px, py, s, 2))
@@ -462,6 +468,35 @@ def substeps(medium, rho_max, ds):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
+def coarse_factor(tau_step, coarse, room):
+    """How many segments of the march one sample may span in a block where a segment is at
+    most ``tau_step`` mean free paths thick (its densest voxel's): at most ``coarse``, at most
+    COARSE_DEPTH thick together, and within the block (which the ray leaves ``room`` segments
+    on); at least 1."""
+    m = coarse
+    if tau_step * coarse > COARSE_DEPTH:
+        m = int(COARSE_DEPTH / tau_step)
+    if room < m:                    # room may be 1e300 (the grid's outer blocks): no int() of it
+        m = int(room)
+    return max(m, 1)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def point_light_room(lights, x, step):
+    """How many segments of length ``step`` fit in NEAR_POINT_LIGHT times the distance from x
+    to the nearest point light, where the light's 1 / r^2 makes the in-scattered light steep
+    (10^9 without point lights)."""
+    is_point, position = lights[IS_POINT], lights[POSITION]
+    r2 = 1e300
+    for l in range(is_point.shape[0]):
+        if is_point[l]:
+            dx, dy, dz = x[0] - position[l, 0], x[1] - position[l, 1], x[2] - position[l, 2]
+            r2 = min(r2, dx * dx + dy * dy + dz * dz)
+    room = NEAR_POINT_LIGHT * math.sqrt(r2) / step
+    return int(min(room, 1e9))
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
 def light_sample(lights, grid, spherical, view, x, d, corners, g, ts):
     """L_s / sigma_s at the sample x (RGB) at distance ts along the camera ray d: with a combined
     source (``view`` = (source, near), source of shape (nx, ny, nz, 3)) its trilinear value plus
@@ -505,9 +540,9 @@ def march_segments(L, T, sigma_t, ds, albedo, ls):
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
-    """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense): from
-    t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1) step] (the
-    last one cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1,
+    """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense,
+    coarse): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
+    step] (the last one cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1,
     L2, T0, T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md
     Eq. 24), and the view transmittance T_v at the exit, 0 once it fell below T_MIN.
 
@@ -515,11 +550,15 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     block the ray enters, not per sample. A segment in a block so dense that it would be
     optically thicker than MAX_SEGMENT_DEPTH is split into :func:`substeps` equal parts, each
     sampled at offset jt, so that a lit skin thinner than a segment is not stepped over
-    (segments elsewhere are as they were; ``dense`` says whether any block is that dense). With
+    (``dense`` says whether any block is that dense). In a block so thin that n segments are
+    together at most COARSE_DEPTH thick, one segment spans n steps (``coarse`` at most,
+    :func:`coarse_factor`, :func:`point_light_room`), sampled at offset jt within it. With
     ``skip``, a sample in an empty block jumps to the first sample past the empty blocks around
     it that the grid vouches for: their density is 0, so they add nothing, and the samples
     taken are the same."""
-    t0, t1, step, jt, skip, dense = segments
+    t0, t1, step, jt, skip, dense, coarse = segments
+    scale = medium[1]
+    sigma_max = max(scale[0], scale[1], scale[2])
     L = (0.0, 0.0, 0.0)
     T = (1.0, 1.0, 1.0)
     i = 0
@@ -543,6 +582,14 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
                     i = max(i, int(math.ceil((ts + exit - t0) / step - jt)))
                 continue
             t_leave = ts + exit
+        if coarse > 1 and rho_max > 0.0 and t1 - t > step:
+            m = min(coarse_factor(rho_max * sigma_max * step, coarse, (t_leave - t) / step),
+                    point_light_room(lights, x, step))
+            if m > 1:
+                i += m - 1
+                ds = min(m * step, t1 - t)
+                ts = t + jt * ds
+                x = (o[0] + ts * d[0], o[1] + ts * d[1], o[2] + ts * d[2])
         k = substeps(medium, rho_max, ds) if dense else 1
         for j in range(k):
             if k > 1:
@@ -590,7 +637,8 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     march: step in world units; spp samples per pixel; seed; jitter: hashed sub-pixel and
         along-ray offsets (False: pixel centres and segment midpoints, for tests); skip: jump
         over empty blocks; dense: whether a segment of ``step`` is optically thicker than
-        MAX_SEGMENT_DEPTH in some block (march_ray splits those).
+        MAX_SEGMENT_DEPTH in some block (march_ray splits those); coarse: the most steps one
+        sample spans in thin blocks (1: every segment one step; method.max_step).
     background: float32 (1, 1, 3) (a constant) or (H, 2H, 3) (a lat-long environment map, see
         background_radiance).
     """
@@ -600,7 +648,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     fields, offset, shape, params, frame, full = spherical
     source, near = view
     o, basis, tan_half, width, height = camera
-    step, spp, seed, jitter, skip, dense = march
+    step, spp, seed, jitter, skip, dense, coarse = march
     for py in nb.prange(height):
         # The bundles are rebuilt here from their arrays, so that the helpers read the arrays
         # themselves: with the bundles as passed in, the march took and dropped references to
@@ -611,7 +659,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         spherical_ = (fields, offset, shape, params, frame, full)
         view_ = (source, near)
         camera_ = (o, basis, tan_half, width, height)
-        march_ = (step, spp, seed, jitter, skip, dense)
+        march_ = (step, spp, seed, jitter, skip, dense, coarse)
         for px in range(width):
             acc0 = acc1 = acc2 = 0.0
             for s in range(spp):
@@ -619,7 +667,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
                 d = camera_ray(camera_, px + jx, py + jy)
                 t0, t1 = ray_box(o, d, lo, hi)
                 L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
-                                                   (t0, t1, step, jt, skip, dense))
+                                                   (t0, t1, step, jt, skip, dense, coarse))
                 b0, b1, b2 = background_radiance(background, d)
                 acc0 += L0 + T0 * b0
                 acc1 += L1 + T1 * b1
