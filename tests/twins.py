@@ -443,11 +443,12 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
     def spans(t, ts):
         """How many steps the sample at ts (of the segment starting at t) spans: as many as make
         at most COARSE_DEPTH mean free paths at the densest voxel of its block (method.max_step
-        at most), within the block, and within NEAR_POINT_LIGHT of the distance to a point light."""
-        x = cam.origin + ts * d
+        at most), within the block, and within NEAR_POINT_LIGHT of the distance from t to a
+        point light; 1 unless t lies in the sample's block."""
+        x, xt = cam.origin + ts * d, cam.origin + t * d
         b, rho_max = block_of(x)
-        if m.max_step <= 1 or rho_max <= 0 or t1 - t <= step:
-            return 1
+        if m.max_step <= 1 or rho_max <= 0 or t1 - t <= step or np.any(block_of(xt)[0] != b):
+            return 1                   # the segment's start must lie in the sample's block
         tau = rho_max * float(np.max(med.scale)) * step
         n = m.max_step if tau * m.max_step <= COARSE_DEPTH else int(COARSE_DEPTH / tau)
         blocks = -(-np.asarray(med.shape) // BLOCK)
@@ -459,7 +460,7 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
                 leave = min(leave, (med.origin[a] + BLOCK * b[a] * med.voxel_size[a] - x[a]) / d[a])
         n = min(n, int(min((ts + max(leave, 0.0) - t) / step, 1e9)))
         for l in np.flatnonzero(solution.is_point):
-            n = min(n, int(NEAR_POINT_LIGHT * np.linalg.norm(x - solution.positions[l]) / step))
+            n = min(n, int(NEAR_POINT_LIGHT * np.linalg.norm(xt - solution.positions[l]) / step))
         return max(n, 1)
 
     L, Tv, i = np.zeros(3), np.ones(3), 0

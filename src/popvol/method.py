@@ -148,11 +148,11 @@ KNOBS: tuple[Knob, ...] = (
          "A capped run is reported as not converged in `--stats`.",
          default_text="0 (automatic: 400 sweeps, or 40 x the domain's perimeter for Jacobi)"),
     Knob("step", 1.0, (1e-3, 16.0), "Ray-marching step, in voxels of the medium."),
-    Knob("max_step", 8, (1, 64), "Most steps one ray-marching sample spans where the medium is thin.",
+    Knob("max_step", 2, (1, 64), "Most steps one ray-marching sample spans where the medium is thin.",
          "In a block of 8^3 voxels whose densest voxel makes n steps together at most half a mean "
          "free path thick, one sample spans up to n steps (never past the block, nor longer than "
-         "1/8 of the distance to a point light); 1 = one sample per step (docs/METHOD.md, "
-         "\"Rendering\")."),
+         "1/8 of the distance to a point light); 1 = one sample per step. Larger is faster where "
+         "the medium is thin and noisier there (docs/METHOD.md, \"Rendering\", Eq. 25c)."),
     Knob("gather", 64, (0, 4096), "Directions of the gathered last scattering (0: off).",
          "The renderer gathers the light reaching each voxel from N directions (half of them in a "
          "cap about the view), transported through the medium from the fields' in-scattered light, "

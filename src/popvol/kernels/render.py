@@ -482,6 +482,18 @@ def coarse_factor(tau_step, coarse, room):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
+def same_block(medium, a, b):
+    """Whether the world points a and b lie in the same block of the coarse grid."""
+    density, origin, voxel, block = medium[0], medium[5], medium[6], medium[10]
+    s = density.shape
+    for k in range(3):
+        if (_block_index(a[k], origin[k], voxel[k], s[k], block)
+                != _block_index(b[k], origin[k], voxel[k], s[k], block)):
+            return False
+    return True
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
 def point_light_room(lights, x, step):
     """How many segments of length ``step`` fit in NEAR_POINT_LIGHT times the distance from x
     to the nearest point light, where the light's 1 / r^2 makes the in-scattered light steep
@@ -552,7 +564,8 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     sampled at offset jt, so that a lit skin thinner than a segment is not stepped over
     (``dense`` says whether any block is that dense). In a block so thin that n segments are
     together at most COARSE_DEPTH thick, one segment spans n steps (``coarse`` at most,
-    :func:`coarse_factor`, :func:`point_light_room`), sampled at offset jt within it. With
+    :func:`coarse_factor`, :func:`point_light_room`; decided at the segment's start, which must
+    lie in that block), sampled at offset jt within it. With
     ``skip``, a sample in an empty block jumps to the first sample past the empty blocks around
     it that the grid vouches for: their density is 0, so they add nothing, and the samples
     taken are the same."""
@@ -583,9 +596,13 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
                 continue
             t_leave = ts + exit
         if coarse > 1 and rho_max > 0.0 and t1 - t > step:
+            # decided from the segment's start, not its sample: for every offset jt the same
+            # segments, each sampled uniformly (the start in the sample's block, so that no part
+            # of the longer segment is sampled only for some jt)
+            xt = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
             m = min(coarse_factor(rho_max * sigma_max * step, coarse, (t_leave - t) / step),
-                    point_light_room(lights, x, step))
-            if m > 1:
+                    point_light_room(lights, xt, step))
+            if m > 1 and same_block(medium, xt, x):
                 i += m - 1
                 ds = min(m * step, t1 - t)
                 ts = t + jt * ds
