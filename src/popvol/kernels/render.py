@@ -554,9 +554,10 @@ def march_segments(L, T, sigma_t, ds, albedo, ls):
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense,
     coarse): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
-    step] (the last one cut at t1), the optics and fields taken at offset jt within each. Returns (L0, L1,
-    L2, T0, T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt (docs/METHOD.md
-    Eq. 24), and the view transmittance T_v at the exit, 0 once it fell below T_MIN.
+    step] (the last one cut at t1), the optics and fields taken at offset jt within each.
+    Returns (L0, L1, L2, T0, T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt
+    (docs/METHOD.md Eq. 24), and the view transmittance T_v at the exit, 0 once it fell below
+    T_MIN.
 
     L_s / sigma_s: :func:`light_sample`. The coarse grid (:func:`block_at`) is read once per
     block the ray enters, not per sample. A segment in a block so dense that it would be
@@ -565,10 +566,9 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     (``dense`` says whether any block is that dense). In a block so thin that n segments are
     together at most COARSE_DEPTH thick, one segment spans n steps (``coarse`` at most,
     :func:`coarse_factor`, :func:`point_light_room`; decided at the segment's start, which must
-    lie in that block), sampled at offset jt within it. With
-    ``skip``, a sample in an empty block jumps to the first sample past the empty blocks around
-    it that the grid vouches for: their density is 0, so they add nothing, and the samples
-    taken are the same."""
+    lie in that block), sampled at offset jt within it. With ``skip``, a sample in an empty
+    block jumps to the first sample past the empty blocks around it that the grid vouches for:
+    their density is 0, so they add nothing, and the samples taken are the same."""
     t0, t1, step, jt, skip, dense, coarse = segments
     scale = medium[1]
     sigma_max = max(scale[0], scale[1], scale[2])
