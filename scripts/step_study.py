@@ -8,8 +8,8 @@ what each step changes in the image, in the metric of ``popvol compare``, and wh
 Every scene of examples/ that loads here, and the regression fixture, is solved once at its own
 method resolution and rendered at each step, with each ``--max-steps`` (method.max_step: how
 many steps one sample may span in thin blocks), and at the finest step / 4 with one sample
-per step (the reference, also jittered). Columns: relMSE on the pixels that see the medium, brightness ratio overall and in
-the brightest 10 %, and the render's seconds (best of 3, 2 cores). With ``--seeds N`` each
+per step (the reference, also jittered). Columns: relMSE on the pixels that see the medium,
+brightness ratio overall and in the brightest 10 %, and the render's seconds (best of 3, 2 cores). With ``--seeds N`` each
 step is rendered with method.seed 0 .. N-1 (other sub-pixel and along-ray offsets) and the
 columns are the mean and standard deviation over the seeds: popvol's own 1-spp sampling noise.
 """
@@ -35,7 +35,8 @@ def scenes(names):
 
 
 def render(scene, solution, step, seed=0, repeat=3, max_step=1):
-    s = dataclasses.replace(scene, method=dataclasses.replace(scene.method, step=step, seed=seed, max_step=max_step))
+    method = dataclasses.replace(scene.method, step=step, seed=seed, max_step=max_step)
+    s = dataclasses.replace(scene, method=method)
     best = float("inf")
     for _ in range(repeat):
         t0 = time.perf_counter()

@@ -127,8 +127,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     step = float(m.step * med.voxel_size.min())
     # whether any block is dense enough that the march splits its segments (the kernel's own rule)
     dense = bool(blocks.size) and substeps(medium, float(blocks.max()), step) > 1
-    coarse = int(m.max_step) if blocks.size else 1    # thin blocks are known from the coarse grid
-    march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense, coarse)
+    march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense, int(m.max_step))
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
 
 

@@ -599,9 +599,10 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
             # decided from the segment's start, not its sample: for every offset jt the same
             # segments, each sampled uniformly (the start in the sample's block, so that no part
             # of the longer segment is sampled only for some jt)
+            m = coarse_factor(rho_max * sigma_max * step, coarse, (t_leave - t) / step)
             xt = (o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2])
-            m = min(coarse_factor(rho_max * sigma_max * step, coarse, (t_leave - t) / step),
-                    point_light_room(lights, xt, step))
+            if m > 1:
+                m = min(m, point_light_room(lights, xt, step))
             if m > 1 and same_block(medium, xt, x):
                 i += m - 1
                 ds = min(m * step, t1 - t)
