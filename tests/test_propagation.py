@@ -446,3 +446,17 @@ def test_what_is_pending_when_the_walk_stops_goes_to_diffusion(rng):
         assert parts == pytest.approx(b.injected, rel=1e-5)
     assert early.iterations < full.iterations
     assert early.handed[0].sum() == pytest.approx(full.handed[0].sum(), abs=0.02 * early.budget.injected)
+
+
+def test_cells_sent_counts_the_cells_a_sweep_sends_from():
+    """``cells_sent`` (the sweeps' work, which `popvol bench` reports per second) counts the cells
+    that send: collimated light in a purely absorbing slab is sent once by every lit cell of its
+    columns in the first sweep (forward), and then nothing is left to send."""
+    shape = (6, 5, 4)
+    Th = np.full(shape, np.exp(-0.05), np.float32)
+    Dh = np.ones(shape, np.float32)
+    injection = np.zeros(shape[1:], np.float32)
+    injection[1:4, :2] = 1.0                                  # 3 x 2 lit columns
+    r = walk_box(Th, Dh, injection, 1.0, 1.0, tolerance=1e-4)
+    assert r.iterations == 1 and r.cells_sent == shape[0] * 3 * 2
+    assert walk_box(Th, Dh, injection, 1.0, 1.0, solver="jacobi", tolerance=1e-4).cells_sent == 0

@@ -11,7 +11,9 @@ compiles the kernels and fills the caches.
 - scenes, end to end, per stage (load, resample, propagate, diffusion, fields, render, total):
   the built-in demo, and the WDAS cloud under the sun (default method, without the gathered last
   bounce, and the walk alone) and under sun + 8-direction sky; the render stage includes the
-  gather. The WDAS scenes ship with popvol (``popvol/bench_scenes``) and
+  gather. Beside them the sweeps' work rate: cells that sent a packet per second of the
+  propagate stage (a cell that sends splits its packet six ways; the throughput rows count
+  every cell a sweep visits, sending or not). The WDAS scenes ship with popvol (``popvol/bench_scenes``) and
   name their volume by file name only; it is looked up in the data folder (:func:`find_data`).
   A scene whose volume is missing is reported as skipped, with the reason.
 - peak memory of each row: the process's resident-set high-water mark (VmHWM) over the row's
@@ -317,6 +319,7 @@ def bench_scene(load, repeat: int, source: str) -> dict:
     render(scene, solution)
     del solution
     stages = {k: [] for k in STAGES}
+    sends = []                              # cells sent per second of the propagate stage
     with _Peak() as peak:
         for _ in range(repeat):
             t0 = time.perf_counter()
@@ -331,6 +334,9 @@ def bench_scene(load, repeat: int, source: str) -> dict:
                 stages[k].append(solution.seconds[k])
             stages["render"].append(t3 - t2)
             stages["total"].append(t3 - t0)
+            sent = sum(ds.result.cells_sent for ds in solution.domains)
+            if sent:
+                sends.append(sent / solution.seconds["propagate"])
     d = [ds.result for ds in solution.domains]
     m, cam = scene.method, scene.camera
     return {"scene": source, "method": f"{m.rule} + {m.decay} + {m.isotropic}, gather {m.gather}",
@@ -338,6 +344,8 @@ def bench_scene(load, repeat: int, source: str) -> dict:
             "environment_resolution": m.environment_resolution,
             "domains": len(solution.domains), "domain_shape": list(solution.domains[0].domain.shape),
             "iterations": [r.iterations for r in d], "residual": max(r.residual for r in d),
+            "cells_sent": [r.cells_sent for r in d],
+            "cells_sent_per_s": spread(sends) if sends else None,
             "diffusion_iterations": [r.diffusion.iterations if r.diffusion else 0 for r in d],
             "seconds": {k: spread(v) for k, v in stages.items()},
             "camera_samples_per_s": spread(cam.width * cam.height * m.spp / x for x in stages["render"]),
@@ -435,6 +443,8 @@ def print_report(res: dict, console) -> None:
                                     for r in rows.values()])
         for k in STAGES:
             t.add_row(k, *[_fmt(r["seconds"][k], spec=".2f") for r in rows.values()])
+        t.add_row("sweeps, M cells sent/s", *[_fmt(r["cells_sent_per_s"], 1e-6) if r["cells_sent_per_s"] else "-"
+                                             for r in rows.values()])
         t.add_row("peak MB", *[f"{r['peak_rss_mb']:.0f}" for r in rows.values()])
         console.print(t)
     for name, row in res["scenes"].items():

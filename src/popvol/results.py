@@ -78,6 +78,8 @@ class WalkResult:
     diffusion: object = None
     seconds_diffusion: float = 0.0
     flux: np.ndarray | None = None
+    cells_sent: int = 0        # the sweeps' cells that sent a packet, summed over the sweeps (the work
+                               # they did; a Jacobi wavefront does not count them)
 
 
 @dataclass
@@ -105,6 +107,7 @@ class DomainSolution:
                 "type": self.light.type, "shape": list(self.domain.shape),
                 "cell_size": self.domain.cell_size, "solver": r.solver, "iterations": r.iterations,
                 "residual": r.residual, "converged": r.converged, "cell_updates": r.cell_updates,
+                "cells_sent": r.cells_sent,
                 "seconds_resample": self.seconds_resample, "seconds_propagate": r.seconds,
                 "seconds_diffusion": r.seconds_diffusion,
                 "diffusion_iterations": r.diffusion.iterations if r.diffusion else 0,

@@ -172,7 +172,7 @@ def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, 
                           injected: float, progress=None) -> tuple[float, int]:
     """Run thresholded Gauss-Seidel sweeps until the power in flight is <= target or ``cap``
     sweeps have run; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
-    number of cells that sent). Returns (in flight, sweeps).
+    number of cells that sent). Returns (in flight, sweeps, cells that sent over all sweeps).
 
     Southwell-style: only cells holding more than twice the mean pending energy send; the
     others wait for more to arrive, which skips most of the faint light in empty space. Near the
@@ -181,15 +181,17 @@ def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, 
     """
     fraction = SOUTHWELL_FRACTION
     it = 0
+    sent_total = 0
     while in_flight > target and it < cap:
         if in_flight < 10.0 * target:
             fraction = min(fraction, 0.5)
         in_flight, sent = one_sweep(it, fraction * in_flight / n_cells)
         fraction = fraction if sent > 0 else 0.0
+        sent_total += int(sent)
         it += 1
         if progress is not None:
             progress(it, in_flight / injected)
-    return in_flight, it
+    return in_flight, it, sent_total
 
 
 def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tally, eps, diffusive, Q,
@@ -305,6 +307,7 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
     target = tolerance * budget.injected
     t0 = time.perf_counter()
     it = 0
+    sent = 0                            # cells that sent, over the sweeps (the sweep solver's)
     if solver == "jacobi":
         # the wave holds packets at cell centres: the injected light has crossed half a cell
         W[0] = injection * Th[0]
@@ -345,8 +348,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
                 left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
                                w_min, inv_area, phi, phia, bands, halo, tally_b, tally, eps, diffusive, Q)
             return left, tally_b[:, 4].sum()
-        in_flight, it = sweep_until_converged(one_sweep, in_flight, target, cap, Th.size,
-                                              budget.injected, progress)
+        in_flight, it, sent = sweep_until_converged(one_sweep, in_flight, target, cap, Th.size,
+                                                    budget.injected, progress)
         if handover is not None:
             tally[K.ABSORBED] += hand_over_pending(W, Wa, Th, Dh, diffusive, Q)
             in_flight = K.total_energy(W)
@@ -357,4 +360,4 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
     residual = in_flight / max(budget.injected, 1e-300)
     return WalkResult(phi, phia, budget, it, it * int(np.prod(shape)), residual, in_flight <= target,
                       seconds, solver, handed=Q if handover is not None else None,
-                      flux=flux if solver == "ordinates" else None)
+                      flux=flux if solver == "ordinates" else None, cells_sent=sent)

@@ -228,14 +228,14 @@ class SphericalDomain:
         t0 = time.perf_counter()
         target = method.tolerance * budget.injected
         cap = method.max_iterations or default_max_iterations(shape, "sweep")
-        in_flight, it = sweep_until_converged(one_sweep, budget.injected, target, cap, R.size,
-                                              budget.injected, progress)
+        in_flight, it, sent = sweep_until_converged(one_sweep, budget.injected, target, cap, R.size,
+                                                    budget.injected, progress)
         budget.reflected, budget.transmitted, budget.side = (float(x) for x in tally[:3])
         budget.absorbed += float(tally[KP.ABSORBED])
         budget.in_flight = in_flight
         return WalkResult(phi, phia, budget, it, it * R.size, in_flight / budget.injected,
                           in_flight <= target, time.perf_counter() - t0, direct=self.direct_fluence(sigma_t),
-                          handed=Q if handover is not None else None)
+                          handed=Q if handover is not None else None, cells_sent=sent)
 
     def direct_fluence(self, sigma_t):
         """The unscattered fluence at the cell centres per unit intensity, float32 (the domain's
