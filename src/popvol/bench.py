@@ -13,8 +13,9 @@ compiles the kernels and fills the caches.
   bounce, and the walk alone) and under sun + 8-direction sky; the render stage includes the
   gather. Beside them the sweeps' work rate: cells that sent a packet per second of the
   propagate stage (a cell that sends splits its packet six ways; the throughput rows count
-  every cell a sweep visits, sending or not). The WDAS scenes ship with popvol (``popvol/bench_scenes``) and
-  name their volume by file name only; it is looked up in the data folder (:func:`find_data`).
+  every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
+  (``popvol/bench_scenes``) and name their volume by file name only; it is looked up in the
+  data folder (:func:`find_data`).
   A scene whose volume is missing is reported as skipped, with the reason.
 - peak memory of each row: the process's resident-set high-water mark (VmHWM) over the row's
   timed runs, reset before the row through ``/proc/self/clear_refs``; elsewhere than Linux,

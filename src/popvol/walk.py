@@ -169,7 +169,7 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q) -> float:
 
 
 def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, n_cells: int,
-                          injected: float, progress=None) -> tuple[float, int]:
+                          injected: float, progress=None) -> tuple[float, int, int]:
     """Run thresholded Gauss-Seidel sweeps until the power in flight is <= target or ``cap``
     sweeps have run; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
     number of cells that sent). Returns (in flight, sweeps, cells that sent over all sweeps).
