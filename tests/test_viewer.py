@@ -509,7 +509,11 @@ def test_burst_of_camera_messages_renders_the_latest_only(server, engine, monkey
         # holds the GIL, so on a slow machine the burst would otherwise trickle in between renders)
         sent = threading.Event()
         frame = engine.frame
-        monkeypatch.setattr(engine, "frame", lambda *a, **kw: (sent.wait(60), frame(*a, **kw))[1])
+
+        def frame_after_the_burst(*args, **kwargs):
+            sent.wait(60)
+            return frame(*args, **kwargs)
+        monkeypatch.setattr(engine, "frame", frame_after_the_burst)
         az0 = init["settings"]["camera_azimuth"]
         for i in range(20):
             ws.send(json.dumps({"type": "set", "settings": {"camera_azimuth": az0 + i + 1}}))
