@@ -509,13 +509,16 @@ def background_twin(scene, d):
 
 
 def sweep_spherical(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, rule, full, forward, flip, w_min, inv_area,
-                    phi, phia, tally, band_rows=16, handover=-1.0, diffusive=None, Q=None):
+                    phi, phia, tally, band_rows=16, handover=-1.0, diffusive=None, Q=None,
+                    k_end=None):
     """One sweep of a point light's spherical domain (twin of kernels.spherical.sweep_spherical_
     bands + deliver), cell by cell, bands of theta rows one after the other. A transfer along
     axis X multiplies by T_X[src] T_X[dst] and D_X[src] D_X[dst]; a full sphere wraps phi,
     crosses the poles to phi + pi and sends the innermost back part to the antipodal cell with
     its anisotropy reversed. Parts crossing a band edge and through the light wait until the
-    end. Returns the power still pending."""
+    end. A part whose destination lies at or beyond k_end[i, j] (int (n_theta, n_phi), beyond
+    the medium's box; None: n_r) has left and is tallied as transmitted. Returns the power
+    still pending."""
     n0, n1, n2 = R.shape
     edges = list(range(0, n1, band_rows)) + [n1]
     if len(edges) > 2 and edges[-1] - edges[-2] < 2:
@@ -562,6 +565,11 @@ def sweep_spherical(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, rule, full, forward, flip, w_
                             moves.append((None, es, ms, Tt, Dt, SIDE_ESCAPED, False))
                     for dst, e, m, T, D, slot, wait in moves:
                         t_src, d_src = float(T[k, i, j]), float(D[k, i, j])
+                        if dst is not None and k_end is not None and dst[0] >= k_end[dst[1], dst[2]]:
+                            t = t_src * float(T[dst])
+                            tally[TRANSMITTED] += e * t
+                            tally[ABSORBED] += e * (1 - t)
+                            continue
                         if dst is None:
                             tally[slot] += e * t_src
                             tally[ABSORBED] += e * (1 - t_src)

@@ -153,10 +153,67 @@ def _send(R, Ra, k, i, j, e, ea, T, D):
     return e * (np.float32(1.0) - T)
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _leave(absorbed, escaped, R, Ra, k_end, k, i, j, e, ea, T, D):
+    """:func:`_send`, unless cell (k, i, j) lies beyond the medium's box (k >= k_end[i, j],
+    :func:`exit_shells`): then the part has left the box for good and is added to ``escaped``.
+    Returns the running tallies (absorbed on the way, escaped)."""
+    if k >= k_end[i, j]:
+        return absorbed + e * (np.float32(1.0) - T), escaped + e * T
+    return absorbed + _send(R, Ra, k, i, j, e, ea, T, D), escaped
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _gap(x, lo, hi):
+    """How far x lies outside [lo, hi] (0 inside)."""
+    return max(lo - x, 0.0, x - hi)
+
+
+#: a cell is beyond the medium's box when its centre is farther from the box than this many of
+#: its own diagonals (the renderer's trilinear stencil at a point in the box stays short of it)
+EXIT_MARGIN = 2.0
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def exit_shells(centre, frame, params, shape, lo, hi):
+    """int32 (n_theta, n_phi): per ray of cells (i, j), the first shell k_end from which every
+    cell's centre lies farther than EXIT_MARGIN cell diagonals (dr, r dtheta, r sin(theta) dphi)
+    from the box [lo, hi] (at least 1: shell 0 holds the light's own emission). The box is
+    convex, so light that reaches such a cell has left it and never comes back: the sweep
+    counts it as escaped instead of walking it on through empty space. A ray that misses the
+    box gets 1; a domain whose box holds every cell gets n_r."""
+    n0, n1, n2 = shape[0], shape[1], shape[2]
+    r0, dr, t0, dt, p0, dp = params[0], params[1], params[2], params[3], params[4], params[5]
+    out = np.empty((n1, n2), np.int32)
+    for i in nb.prange(n1):
+        t = t0 + (i + 0.5) * dt
+        st = math.sin(t)
+        ct = math.cos(t)
+        for j in range(n2):
+            p = p0 + (j + 0.5) * dp
+            sp = math.sin(p)
+            cp = math.cos(p)
+            k_end = 0
+            for kk in range(n0):
+                k = n0 - 1 - kk
+                r = r0 + (k + 0.5) * dr
+                ox, oy, oz = _local(frame, r, st, ct, sp, cp)
+                gx = _gap(centre[0] + ox, lo[0], hi[0])
+                gy = _gap(centre[1] + oy, lo[1], hi[1])
+                gz = _gap(centre[2] + oz, lo[2], hi[2])
+                d2 = gx * gx + gy * gy + gz * gz
+                diag2 = dr * dr + (r * dt) ** 2 + (r * st * dp) ** 2
+                if d2 <= EXIT_MARGIN * EXIT_MARGIN * diag2:
+                    k_end = k + 1
+                    break
+            out[i, j] = max(k_end, 1)
+    return out
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip,
                           w_min, inv_area, phi, phia, bands, halo, anti, tally_b, handover,
-                          diffusive, Q):
+                          diffusive, Q, k_end):
     """One sweep over the shells (``forward``: outward), each band of theta rows by its own
     thread (as kernels.propagation.sweep_bands); cells with pending power <= w_min wait.
 
@@ -164,6 +221,9 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
     parks side parts crossing into the band above/below; anti float32 (2, n_theta, n_phi)
     parks what passes the light into the antipodal cell of shell 0 (full sphere; each target
     has one sender). tally_b float64 (n_bands, 5): four tallies and the cells that sent.
+    k_end int32 (n_theta, n_phi) (:func:`exit_shells`): what reaches a cell at or beyond it has
+    left the medium's box and is tallied as transmitted, so nothing is pending there (a band
+    visits its shells up to its largest k_end only).
     """
     n0, n1, n2 = R.shape
     half = n2 // 2
@@ -177,8 +237,13 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
         side_out = 0.0
         absorbed = 0.0
         sent = 0
-        for step in range(n0):
-            k = step if forward else n0 - 1 - step
+        # beyond the band's last k_end nothing ever arrives: those shells are not visited
+        n_k = 1
+        for i in range(lo, hi):
+            for j in range(n2):
+                n_k = max(n_k, k_end[i, j])
+        for step in range(n_k):
+            k = step if forward else n_k - 1 - step
             for si in range(hi - lo):
                 i = hi - 1 - si if flip else lo + si
                 for sj in range(n2):
@@ -199,15 +264,15 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
                     tr = Tr[k, i, j]
                     dr_ = Dr[k, i, j]
                     if k + 1 < n0:
-                        absorbed += _send(R, Ra, k + 1, i, j, ef, efa, tr * Tr[k + 1, i, j],
-                                         dr_ * Dr[k + 1, i, j])
+                        absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k + 1, i, j, ef, efa,
+                                                 tr * Tr[k + 1, i, j], dr_ * Dr[k + 1, i, j])
                     else:
                         trans += ef * tr
                         absorbed += ef * (one - tr)
                     if eb > 0.0:
                         if k > 0:
-                            absorbed += _send(R, Ra, k - 1, i, j, eb, eba, tr * Tr[k - 1, i, j],
-                                             dr_ * Dr[k - 1, i, j])
+                            absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k - 1, i, j, eb, eba,
+                                                     tr * Tr[k - 1, i, j], dr_ * Dr[k - 1, i, j])
                         elif full:
                             ia = n1 - 1 - i
                             ja = (j + half) % n2
@@ -230,8 +295,8 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
                                 absorbed += es * (one - tp)
                                 continue
                             jj = _wrap(jj, n2)
-                        absorbed += _send(R, Ra, k, i, jj, es, esa, tp * Tp[k, i, jj],
-                                         dp_ * Dp[k, i, jj])
+                        absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k, i, jj, es, esa,
+                                                 tp * Tp[k, i, jj], dp_ * Dp[k, i, jj])
                     # theta neighbours: across a pole (same row), in the band, or parked
                     tt = Tt[k, i, j]
                     dt_ = Dt[k, i, j]
@@ -243,11 +308,15 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
                                 absorbed += es * (one - tt)
                                 continue
                             jp = (j + half) % n2
-                            absorbed += _send(R, Ra, k, i, jp, es, esa, tt * Tt[k, i, jp],
-                                             dt_ * Dt[k, i, jp])
+                            absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k, i, jp, es, esa,
+                                                     tt * Tt[k, i, jp], dt_ * Dt[k, i, jp])
                         elif ii >= lo and ii < hi:
-                            absorbed += _send(R, Ra, k, ii, j, es, esa, tt * Tt[k, ii, j],
-                                             dt_ * Dt[k, ii, j])
+                            absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k, ii, j, es, esa,
+                                                     tt * Tt[k, ii, j], dt_ * Dt[k, ii, j])
+                        elif k >= k_end[ii, j]:
+                            T = tt * Tt[k, ii, j]
+                            trans += es * T
+                            absorbed += es * (one - T)
                         else:
                             T = tt * Tt[k, ii, j]
                             halo[b, side, 0, k, j] += es * T
@@ -262,13 +331,13 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
 
 @nb.njit(fastmath=True, cache=True)
 def sweep(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip, w_min, inv_area, phi,
-          phia, bands, halo, anti, tally_b, handover, diffusive, Q):
+          phia, bands, halo, anti, tally_b, handover, diffusive, Q, k_end):
     """One sweep (sweep_spherical_bands) and the delivery of parked parts; returns the power
     pending. Call it with numba.parallel_chunksize(1), as kernels.propagation.sweep."""
     tally_b[:] = 0.0
     sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip,
                           w_min, inv_area, phi, phia, bands, halo, anti, tally_b, handover,
-                          diffusive, Q)
+                          diffusive, Q, k_end)
     deliver(R, Ra, bands, halo, anti)
     return total_energy(R)
 

@@ -110,6 +110,9 @@ class SphericalDomain:
         r0, dr, theta0, dtheta, phi0, dphi: floats (world units and radians).
         shape: (n_r, n_theta, n_phi).
         full: the whole sphere (see above).
+        box: float64 (2, 3), the medium's box (lo, hi), or None. The box is convex, so light
+            that has left it never comes back: the sweep counts what reaches a cell well
+            beyond it as escaped instead of walking it on through empty space (exit_shells).
     """
 
     centre: np.ndarray
@@ -122,6 +125,16 @@ class SphericalDomain:
     dphi: float
     shape: tuple[int, int, int]
     full: bool
+    box: np.ndarray | None = None
+
+    def exit_shells(self) -> np.ndarray:
+        """int32 (n_theta, n_phi): per ray of cells, the first shell beyond the medium's box
+        (kernels.spherical.exit_shells), where light that arrives has left the box for good;
+        n_r everywhere without a box."""
+        if self.box is None:
+            return np.full(self.shape[1:], self.shape[0], np.int32)
+        return KS.exit_shells(self.centre, self.frame, self.params, np.array(self.shape, np.int64),
+                              self.box[0], self.box[1])
 
     @property
     def n_cells(self) -> int:
@@ -216,12 +229,13 @@ class SphericalDomain:
         table = split_table32()
         moment = method.rule == "moment"
         inv_area = self.inverse_area()
+        k_end = self.exit_shells()
 
         def one_sweep(it, w_min):
             with numba.parallel_chunksize(1):     # bands to threads one at a time
                 left = KS.sweep(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, self.full, it % 2 == 0,
                                 it % 4 >= 2, np.float32(w_min), inv_area, phi, phia, bands, halo, anti,
-                                tally_b, eps, diffusive, Q)
+                                tally_b, eps, diffusive, Q, k_end)
             tally[:] += tally_b[:, :4].sum(axis=0)
             return left, tally_b[:, 4].sum()
 
@@ -299,6 +313,7 @@ def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> S
     of about equal size in the three directions at the middle radius."""
     p = np.asarray(position, np.float64)
     lo, hi = medium.bounds
+    box = np.array([lo, hi], np.float64)
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     check_point_distance(medium, p, medium.source)
     rel = corners - p
@@ -319,7 +334,7 @@ def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> S
         n_t = max(2, int(np.ceil(np.pi * r_m / h - 1e-9)))
         shape = (max(1, int(np.ceil((r_hi - r_lo) / h - 1e-9))), n_t, 2 * n_t)
         dom = SphericalDomain(p, frame, r_lo, (r_hi - r_lo) / shape[0], 0.0, np.pi / n_t, 0.0,
-                              np.pi / n_t, shape, True)
+                              np.pi / n_t, shape, True, box)
     else:
         frame = light_frame(axis)
         width = 2 * alpha * r_m
@@ -327,7 +342,7 @@ def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> S
         n_a = max(1, int(np.ceil(width / h - 1e-9)))
         shape = (max(1, int(np.ceil((r_hi - r_lo) / h - 1e-9))), n_a, n_a)
         dom = SphericalDomain(p, frame, r_lo, (r_hi - r_lo) / shape[0], np.pi / 2 - alpha,
-                              2 * alpha / n_a, -alpha, 2 * alpha / n_a, shape, False)
+                              2 * alpha / n_a, -alpha, 2 * alpha / n_a, shape, False, box)
     check_memory(dom.n_cells * BYTES_PER_SPHERICAL_CELL, f"{medium.source}: method.resolution = {resolution}",
                  f"a point light's domain of {shape[0]}x{shape[1]}x{shape[2]} cells")
     return dom
