@@ -135,6 +135,32 @@ def test_spherical_sweep_kernel_equals_numpy_twin(where, forward, flip, handover
     assert Rx.sum(dtype=np.float64) + tally.sum() + Q[0].sum(dtype=np.float64) == pytest.approx(total, rel=1e-5)
 
 
+@pytest.mark.parametrize("decay", ["poisson", "paper"])
+@pytest.mark.parametrize("where", ["inside", "far"])
+def test_cell_factors_and_direct_fluence_equal_numpy_twins(where, decay):
+    """kernels.spherical.cell_factors (the half-step factors of the three step lengths and the
+    hand-over factor, in one pass) against walk.medium_factors and walk.handover_factor, and
+    kernels.spherical.direct_fluence against walk.direct_fluence along the rays, on a real
+    medium with empty cells."""
+    from popvol.walk import direct_fluence, handover_factor
+    dom = spherical_domain(blob(n=12, tau=6.0, albedo=0.8, g=0.5), np.array(POSITIONS[where]), 12)
+    sigma_t, sigma_s, g = dom.resample(blob(n=12, tau=6.0, albedo=0.8, g=0.5))
+    assert (sigma_t == 0).any() and (sigma_t > 0).any()
+    got = [np.empty(dom.shape, np.float32) for _ in range(7)]
+    KS.cell_factors(sigma_t, sigma_s, g, dom.params, decay == "paper", *got)
+    Tr, Tt, Tp, Dr, Dt, Dp, factor = got
+    lengths = dom.transfer_lengths()
+    for (T, D), s in zip(((Tr, Dr), (Tt, Dt), (Tp, Dp)), lengths):
+        T_ref, D_ref = medium_factors(sigma_t, sigma_s, g, s, decay)
+        np.testing.assert_allclose(T, T_ref, rtol=1e-6)
+        np.testing.assert_allclose(D, D_ref, rtol=1e-6)
+    np.testing.assert_allclose(factor, handover_factor(sigma_t, sigma_s, g, sum(lengths) / 3.0), rtol=1e-5,
+                               atol=1e-7)
+    out = np.empty(dom.shape, np.float32)
+    KS.direct_fluence(sigma_t, dom.params, out)
+    np.testing.assert_allclose(out, direct_fluence(sigma_t, dom.dr), rtol=1e-6)
+
+
 @pytest.mark.parametrize("where", POSITIONS)
 def test_exit_shells_equal_numpy_twin(where):
     """kernels.spherical.exit_shells against the cell centres' distances to the box computed

@@ -45,11 +45,80 @@ def _local(frame, r, st, ct, sp, cp):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
+def cell_factors(sigma_t, sigma_s, g, params, paper, Tr, Tt, Tp, Dr, Dt, Dp, handover):
+    """Per cell, the half-step transmittance and anisotropy decay of a step along r, theta and
+    phi (lengths dr, r dtheta, r sin(theta) dphi), float32 into Tr, Tt, Tp and Dr, Dt, Dp, and
+    the hand-over factor of the mean of the three lengths into ``handover`` (all the domain's
+    shape; NumPy twins: walk.medium_factors and walk.handover_factor, which define them):
+
+      T = exp(-sigma_a s / 2),  D = exp(-sigma_s s (1 - g) / 2)  (``paper``: g^(sigma_s s / 2)),
+      f = 1 - exp(-sigma_tr s_mean) where sigma_s > 0 and sigma_t > 0, else 0.
+    """
+    n0, n1, n2 = sigma_t.shape
+    r0, dr, t0, dt, dp = params[0], params[1], params[2], params[3], params[5]
+    for k in nb.prange(n0):
+        r = r0 + (k + 0.5) * dr
+        for i in range(n1):
+            s_t = r * dt
+            s_p = r * math.sin(t0 + (i + 0.5) * dt) * dp
+            s_mean = (dr + s_t + s_p) / 3.0
+            for j in range(n2):
+                st = np.float64(sigma_t[k, i, j])
+                ss = np.float64(sigma_s[k, i, j])
+                gg = np.float64(g[k, i, j])
+                if st == 0.0 and ss == 0.0:     # empty space, most of a sphere about a cloud
+                    Tr[k, i, j] = Tt[k, i, j] = Tp[k, i, j] = 1.0
+                    Dr[k, i, j] = Dt[k, i, j] = Dp[k, i, j] = 1.0
+                    handover[k, i, j] = 0.0
+                    continue
+                sa = max(st - ss, 0.0)
+                for axis in range(3):
+                    s = dr if axis == 0 else (s_t if axis == 1 else s_p)
+                    x = 0.5 * s * ss
+                    if paper:
+                        d = max(gg, 0.0) ** x if x > 0.0 else 1.0
+                    else:
+                        d = math.exp(-x * (1.0 - gg))
+                    t = math.exp(-0.5 * s * sa)
+                    if axis == 0:
+                        Tr[k, i, j] = t
+                        Dr[k, i, j] = d
+                    elif axis == 1:
+                        Tt[k, i, j] = t
+                        Dt[k, i, j] = d
+                    else:
+                        Tp[k, i, j] = t
+                        Dp[k, i, j] = d
+                f = 0.0
+                if ss > 0.0 and st > 0.0:
+                    f = -math.expm1(-(sa + ss * (1.0 - gg)) * s_mean)
+                handover[k, i, j] = f
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def direct_fluence(sigma_t, params, out):
+    """``out`` float32 (the domain's shape): r^2 phi_dir = exp(-tau) at each cell centre per
+    unit intensity, tau = sigma_t integrated along the ray from the inner sphere to the centre,
+    sigma_t piecewise constant (Eq. 22; NumPy twin: walk.direct_fluence)."""
+    n0, n1, n2 = sigma_t.shape
+    dr = params[1]
+    for i in nb.prange(n1):
+        tau = np.zeros(n2)                  # along each ray of the row, to the shell's inner face
+        for k in range(n0):
+            for j in range(n2):
+                half = np.float64(sigma_t[k, i, j]) * (0.5 * dr)
+                out[k, i, j] = math.exp(-(tau[j] + half))
+                tau[j] += 2.0 * half
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
 def resample_spherical(grid, inv_voxel, grid_origin, centre, frame, params, shape, clamp, out):
     """Sample ``grid`` (a world voxel grid) at the centres of a spherical domain's cells into
     ``out`` float32 ``shape``; params = (r0, dr, theta0, dtheta, phi0, dphi). ``clamp``: clamp
     to the edge outside the grid instead of returning 0."""
     r0, dr, t0, dt, p0, dp = params[0], params[1], params[2], params[3], params[4], params[5]
+    sin_p = np.sin(p0 + (np.arange(shape[2]) + 0.5) * dp)
+    cos_p = np.cos(p0 + (np.arange(shape[2]) + 0.5) * dp)
     for k in nb.prange(shape[0]):
         r = r0 + (k + 0.5) * dr
         for i in range(shape[1]):
@@ -57,8 +126,7 @@ def resample_spherical(grid, inv_voxel, grid_origin, centre, frame, params, shap
             st = math.sin(t)
             ct = math.cos(t)
             for j in range(shape[2]):
-                p = p0 + (j + 0.5) * dp
-                ox, oy, oz = _local(frame, r, st, ct, math.sin(p), math.cos(p))
+                ox, oy, oz = _local(frame, r, st, ct, sin_p[j], cos_p[j])
                 x = (centre[0] + ox - grid_origin[0]) * inv_voxel[0]
                 y = (centre[1] + oy - grid_origin[1]) * inv_voxel[1]
                 z = (centre[2] + oz - grid_origin[2]) * inv_voxel[2]

@@ -24,8 +24,7 @@ from ..kernels import propagation as KP
 from ..kernels import spherical as KS
 from ..medium import Medium
 from ..results import Budget, WalkResult
-from ..walk import (default_max_iterations, direct_fluence, handover_arrays, handover_factor,
-                    medium_factors, split_table32, sweep_until_converged)
+from ..walk import default_max_iterations, handover_arrays, split_table32, sweep_until_converged
 from .base import HandOver, Light
 
 
@@ -202,10 +201,9 @@ class SphericalDomain:
         diffusion stage) the handed-over power and moment."""
         sigma_t, sigma_s, g = optics
         shape = self.shape
-        s_r, s_t, s_p = self.transfer_lengths()
-        Tr, Dr = medium_factors(sigma_t, sigma_s, g, s_r, method.decay)
-        Tt, Dt = medium_factors(sigma_t, sigma_s, g, s_t, method.decay)
-        Tp, Dp = medium_factors(sigma_t, sigma_s, g, s_p, method.decay)
+        Tr, Tt, Tp, Dr, Dt, Dp, factor = (np.empty(shape, np.float32) for _ in range(7))
+        KS.cell_factors(sigma_t, sigma_s, g, self.params, method.decay == "paper", Tr, Tt, Tp, Dr, Dt, Dp,
+                        factor)
         omega = np.broadcast_to(self.solid_angles[:, None], shape[1:])
         budget = Budget(injected=float(omega.sum(dtype=np.float64)))
         # pending power at the centres of shell 0: it has crossed half a cell (Tr[0])
@@ -219,7 +217,7 @@ class SphericalDomain:
         handover = None
         if method.isotropic == "diffusion":
             # the threshold of the mean of the radial and the two lateral step lengths
-            handover = (method.handover_scale, handover_factor(sigma_t, sigma_s, g, (s_r + s_t + s_p) / 3.0))
+            handover = (method.handover_scale, factor)
         eps, diffusive, Q = handover_arrays(handover, shape)
         bands = KP.band_edges(shape[1])
         halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
@@ -255,7 +253,10 @@ class SphericalDomain:
         """The unscattered fluence at the cell centres per unit intensity, float32 (the domain's
         shape): r^2 phi_dir = exp(-tau), tau along the ray from the light, which crosses the
         shells along k (the same sum as a sun's along its axis)."""
-        return (direct_fluence(sigma_t, self.dr) / (self.radii ** 2)[:, None, None]).astype(np.float32)
+        out = np.empty(self.shape, np.float32)
+        KS.direct_fluence(sigma_t, self.params, out)
+        out /= (self.radii ** 2).astype(np.float32)[:, None, None]
+        return out
 
     def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
         """The handed-over power on a world-aligned rectilinear grid over the medium
@@ -282,9 +283,11 @@ class SphericalDomain:
         """float32 (3, n_cells): r^2 phi, r^2 phia and r^2 phi_dir, C-ordered (n_r, n_theta,
         n_phi): smooth where phi has the light's 1/r^2 spike (in vacuum r^2 phi = I), so the
         renderer's trilinear lookup per sample stays exact near the light."""
-        r2 = (self.radii ** 2)[:, None, None]
-        return np.stack([(walk.phi * r2).ravel(), (walk.phia * r2).ravel(),
-                         (walk.direct * r2).ravel()]).astype(np.float32)
+        r2 = (self.radii ** 2).astype(np.float32)[:, None, None]
+        block = np.empty((3,) + self.shape, np.float32)
+        for row, field in zip(block, (walk.phi, walk.phia, walk.direct)):
+            np.multiply(field, r2, out=row)
+        return block.reshape(3, -1)
 
 
 #: A cone wider than this (half-angle) becomes a full sphere: its corners would be too distorted.
