@@ -168,6 +168,10 @@ def test_bench_quick_writes_well_formed_figures(tmp_path):
     assert all(n >= it > 0 for n, it in zip(demo["cells_sent"], demo["iterations"]))
     assert demo["cells_sent_per_s"]["min"] > 0
     assert "not found" in res["scenes"]["wdas_sun"]["skipped"] and "wdas_sun: skipped" in r.stdout
+    # the procedural field under a point light needs no data: one full-sphere domain (n_phi = 2 n_theta)
+    field = res["scenes"]["field_point"]
+    assert field["domains"] == 1 and field["domain_shape"][2] == 2 * field["domain_shape"][1]
+    assert field["cells_sent"][0] >= field["iterations"][0] > 0 and field["seconds"]["total"]["min"] > 0
 
 
 def test_reference_without_mitsuba_says_how_to_install(monkeypatch):

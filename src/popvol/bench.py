@@ -9,9 +9,10 @@ compiles the kernels and fills the caches.
   solver is to this machine's memory bandwidth; render throughput in camera samples
   (pixels x spp) per second at 640x360 on the same clouds (the ray march, without the gather);
 - scenes, end to end, per stage (load, resample, propagate, diffusion, fields, render, total):
-  the built-in demo, and the WDAS cloud under the sun (default method, without the gathered last
-  bounce, and the walk alone) and under sun + 8-direction sky; the render stage includes the
-  gather. Beside them the sweeps' work rate: cells that sent a packet per second of the
+  the built-in demo, the WDAS cloud under the sun (default method, without the gathered last
+  bounce, and the walk alone) and under sun + 8-direction sky, and the procedural field of small
+  cumulus lit by a point light inside it at 128 and 256 cells (96x64); the render stage
+  includes the gather. Beside them the sweeps' work rate: cells that sent a packet per second of the
   propagate stage (a cell that sends splits its packet six ways; the throughput rows count
   every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
   (``popvol/bench_scenes``) and name their volume by file name only; it is looked up in the
@@ -70,6 +71,10 @@ SCENES = {
     "wdas_sun_sky": ("wdas_sun_sky.toml", {},
                      {"width": 160, "height": 90, "resolution": 64, "environment_resolution": 32},
                      "WDAS cloud under sun + 8-direction sky (9 domains)"),
+    "field_point": ("field_point.toml", {}, {"resolution": 32},
+                    "procedural cumulus field lit by a point light inside it (full-sphere domain)"),
+    "field_point_256": ("field_point.toml", {"resolution": 256}, {"resolution": 48},
+                        "the same at 256 cells"),
 }
 STAGES = ("load", "resample", "propagate", "diffusion", "fields", "render", "total")
 
@@ -244,11 +249,18 @@ def bench_scene_text(name: str) -> str:
     return (importlib.resources.files("popvol") / "bench_scenes" / name).read_text()
 
 
-def load_bench_scene(name: str, volume: Path, **overrides):
-    """A packaged bench scene with its medium read from ``volume``."""
+def needs_volume(name: str) -> bool:
+    """Whether packaged bench scene ``name`` reads its medium from a file (else procedural)."""
+    return tomllib.loads(bench_scene_text(name))["medium"]["type"] == "file"
+
+
+def load_bench_scene(name: str, volume: Path | None, **overrides):
+    """A packaged bench scene, with its medium read from ``volume`` if it reads one."""
     doc = tomllib.loads(bench_scene_text(name))
-    doc["medium"]["file"] = str(volume)
-    scene = scene_from_dict(doc, source=f"popvol/bench_scenes/{name}", base_dir=volume.parent)
+    if volume is not None:
+        doc["medium"]["file"] = str(volume)
+    scene = scene_from_dict(doc, source=f"popvol/bench_scenes/{name}",
+                            base_dir=volume.parent if volume is not None else ".")
     return apply_overrides(scene, **overrides) if overrides else scene
 
 
@@ -377,6 +389,9 @@ def run_benchmarks(quick: bool = False, repeat: int | None = None, data: str | P
         ov = {**overrides, **(quick_overrides if quick else {})}
         if toml is None:
             load, source = (lambda ov=ov: load_scene(None, **ov)), "<demo scene>"
+        elif not needs_volume(toml):
+            load = lambda toml=toml, ov=ov: load_bench_scene(toml, None, **ov)
+            source = f"popvol/bench_scenes/{toml}"
         else:
             volume, why = locate(WDAS_VOLUME, found)
             if volume is None:
