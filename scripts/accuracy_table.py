@@ -160,18 +160,53 @@ def summary_row(key: str, s: dict) -> str:
             f"{'yes' if goal_met(d[1], d[2]) else 'no'} |")
 
 
+def kept_sections(path: Path) -> dict[str, tuple[list[str], list[str]]]:
+    """Per scene key, the lines of its section and its summary row(s) in an existing
+    docs/ACCURACY.md (for ``--only``)."""
+    lines = path.read_text().splitlines()
+    out, key = {}, None
+    for line in lines:
+        if line.startswith("_Generated"):
+            key = None
+        elif line.startswith("## ") and not line.startswith("## Summary"):
+            key = line[3:].strip()
+            out[key] = ([], [])
+        if key is not None:
+            out[key][0].append(line)
+    for line in lines:
+        cells = line.split(" | ")
+        if line.startswith("| ") and cells[0][2:] in out:
+            out[cells[0][2:]][1].append(line)
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--spp", type=int, default=4096, help="samples per pixel of the suite's references")
     ap.add_argument("--variant", default="llvm_ad_rgb")
+    ap.add_argument("--only", nargs="+", metavar="SCENE",
+                    help="measure only these scenes (keys as in the table, e.g. smoke1_point or "
+                         "gallery/wdas_side) and keep every other scene's section and summary row "
+                         "from the current docs/ACCURACY.md")
     args = ap.parse_args()
+    keep = kept_sections(ROOT / "docs" / "ACCURACY.md") if args.only else None
     BUILD.mkdir(parents=True, exist_ok=True)
     FIGURES.mkdir(parents=True, exist_ok=True)
     t_all = time.perf_counter()
     cases = [(name, what, SUITE / f"{name}.toml", "suite") for name, what in ORDER.items()]
     cases += [(f"gallery/{name}", what, ROOT / "examples" / f"{name}.toml", "gallery") for name, what in GALLERY.items()]
+    if args.only:
+        unknown = sorted(set(args.only) - {c[0] for c in cases})
+        if unknown:
+            ap.error(f"--only: no scene {', '.join(unknown)} in the table")
     body, summary = [], []
     for key, what, path, kind in cases:
+        if keep is not None and key not in args.only:
+            if key not in keep:
+                ap.error(f"--only: docs/ACCURACY.md has no section for {key} to keep; run without --only")
+            body += keep[key][0]
+            summary += keep[key][1]
+            continue
         try:
             if kind == "suite":
                 ref = reference_for(key, path, BUILD / f"{key}.exr", int(args.spp * SPP_SCALE.get(key, 1.0)),
@@ -216,7 +251,10 @@ def main():
             "largest band move 128 -> 256 | walk alone, relMSE at 128 | no gather, at 128 (brightness) | "
             "Jacobi, at 128 | binned, at 64 | six ordinates, at 64 / 128 (brightness at 128) | goal met |",
             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    text = head + summary + [""] + body + [f"_Generated in {time.perf_counter() - t_all:.0f} s._"]
+    made = f"_Generated in {time.perf_counter() - t_all:.0f} s._"
+    if args.only:
+        made = f"_Generated in parts; {', '.join(args.only)} last, in {time.perf_counter() - t_all:.0f} s._"
+    text = head + summary + [""] + body + [made]
     out = ROOT / "docs" / "ACCURACY.md"
     tmp = out.with_suffix(".md.tmp")
     tmp.write_text("\n".join(text) + "\n")
