@@ -44,6 +44,18 @@ def _local(frame, r, st, ct, sp, cp):
     return x, y, z
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _half_step(s, sigma_a, sigma_s, g, paper):
+    """(T, D) of a step of length s (walk.medium_factors): T = exp(-sigma_a s / 2), D =
+    exp(-sigma_s s (1 - g) / 2), or g^(sigma_s s / 2) with the ``paper`` decay."""
+    x = 0.5 * s * sigma_s
+    if paper:
+        d = max(g, 0.0) ** x if x > 0.0 else 1.0
+    else:
+        d = math.exp(-x * (1.0 - g))
+    return math.exp(-0.5 * s * sigma_a), d
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def cell_factors(sigma_t, sigma_s, g, params, paper, Tr, Tt, Tp, Dr, Dt, Dp, handover):
     """Per cell, the half-step transmittance and anisotropy decay of a step along r, theta and
@@ -72,23 +84,9 @@ def cell_factors(sigma_t, sigma_s, g, params, paper, Tr, Tt, Tp, Dr, Dt, Dp, han
                     handover[k, i, j] = 0.0
                     continue
                 sa = max(st - ss, 0.0)
-                for axis in range(3):
-                    s = dr if axis == 0 else (s_t if axis == 1 else s_p)
-                    x = 0.5 * s * ss
-                    if paper:
-                        d = max(gg, 0.0) ** x if x > 0.0 else 1.0
-                    else:
-                        d = math.exp(-x * (1.0 - gg))
-                    t = math.exp(-0.5 * s * sa)
-                    if axis == 0:
-                        Tr[k, i, j] = t
-                        Dr[k, i, j] = d
-                    elif axis == 1:
-                        Tt[k, i, j] = t
-                        Dt[k, i, j] = d
-                    else:
-                        Tp[k, i, j] = t
-                        Dp[k, i, j] = d
+                Tr[k, i, j], Dr[k, i, j] = _half_step(dr, sa, ss, gg, paper)
+                Tt[k, i, j], Dt[k, i, j] = _half_step(s_t, sa, ss, gg, paper)
+                Tp[k, i, j], Dp[k, i, j] = _half_step(s_p, sa, ss, gg, paper)
                 f = 0.0
                 if ss > 0.0 and st > 0.0:
                     f = -math.expm1(-(sa + ss * (1.0 - gg)) * s_mean)

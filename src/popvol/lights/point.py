@@ -175,7 +175,8 @@ class SphericalDomain:
 
     def transfer_lengths(self):
         """Lengths of a step along r, theta and phi from each cell's centre, broadcastable to
-        the domain's shape: dr, r dtheta, r sin(theta) dphi."""
+        the domain's shape: dr, r dtheta, r sin(theta) dphi (kernels.spherical.cell_factors
+        computes them per cell; tests/test_point.py checks its factors against these)."""
         r = self.radii[:, None, None]
         sin_t = np.sin(self.thetas)[None, :, None]
         return np.full((1, 1, 1), self.dr), r * self.dtheta, r * sin_t * self.dphi
