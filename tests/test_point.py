@@ -88,6 +88,27 @@ def _random_domain_state(dom, rng, tau):
     return (sigma_t, sigma_s), (Tr, Tt, Tp, Dr, Dt, Dp), R, Ra
 
 
+def faces(dom, cell_factors):
+    """kernels.spherical.face_factors of a domain's cell factors (Tr, Tt, Tp, Dr, Dt, Dp)."""
+    n0, n1, n2 = dom.shape
+    F = (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
+         np.empty((n0, n1, n2 + 1, 2), np.float32))
+    KS.face_factors(*cell_factors, dom.full, *F)
+    return F
+
+
+@pytest.mark.parametrize("where", ["inside", "far"])
+def test_face_factors_equal_numpy_twin(where, rng):
+    """kernels.spherical.face_factors against the twin that pads each factor array with its
+    neighbours across the domain's edges (antipodes, poles, phi's wrap on a full sphere; 1 where
+    a part leaves a cone), on random factors so a wrong neighbour cannot hide."""
+    dom = spherical_domain(blob(n=12), np.array(POSITIONS[where]), 12)
+    assert dom.full == (where == "inside")
+    cells = [rng.uniform(0.2, 1.0, dom.shape).astype(np.float32) for _ in range(6)]
+    for got, want in zip(faces(dom, cells), ref.face_factors(*cells, dom.full)):
+        np.testing.assert_allclose(got, want, rtol=1e-6)
+
+
 @pytest.mark.parametrize("where", ["inside", "far", "close above"])
 @pytest.mark.parametrize("forward,flip", [(True, False), (False, True)])
 @pytest.mark.parametrize("handover", [-1.0, 0.3])
@@ -116,7 +137,7 @@ def test_spherical_sweep_kernel_equals_numpy_twin(where, forward, flip, handover
             halo = np.zeros((len(bands) - 1, 2, 2, dom.shape[0], dom.shape[2]), np.float32)
             anti = np.zeros((2,) + dom.shape[1:], np.float32)
             tally_b = np.zeros((len(bands) - 1, 5))
-            KS.sweep_spherical_bands(Rx, Rax, *F, split_table32(), True, dom.full, forward, flip,
+            KS.sweep_spherical_bands(Rx, Rax, *faces(dom, F), split_table32(), True, dom.full, forward, flip,
                                      np.float32(w_min), inv_area, phi, phia, bands, halo, anti,
                                      tally_b, handover, diffusive, Q, k_end)
             KS.deliver(Rx, Rax, bands, halo, anti)

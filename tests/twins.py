@@ -508,6 +508,30 @@ def background_twin(scene, d):
     return rows[0] * (1 - fy) + rows[1] * fy
 
 
+def face_factors(Tr, Tt, Tp, Dr, Dt, Dp, full):
+    """Twin of kernels.spherical.face_factors: (Fr, Ft, Fp), each face's (T, D) in the last axis,
+    the product of the half steps of the two cells it joins, built by padding each factor
+    array with what lies beyond its first and last cells along its axis: the antipodal cell
+    (inner sphere), the cell at phi + pi (poles) or the other end (phi) on a full sphere, and 1
+    (nothing: the part leaves) elsewhere."""
+    n0, n1, n2 = Tr.shape
+    out = []
+    for T, D in ((Tr, Dr), (Tt, Dt), (Tp, Dp)):
+        pair = np.stack([T, D], -1).astype(np.float64)
+        out.append(pair)
+    (r, t, p) = out
+    one = lambda shape: np.ones(shape + (2,))
+    half_turn = lambda x: np.roll(x, -(n2 // 2), axis=-2)      # cell (., ., j + n_phi / 2)
+    inner = half_turn(r[0, ::-1])[None] if full else one((1, n1, n2))
+    r = np.concatenate([inner, r, one((1, n1, n2))], axis=0)
+    pole0 = half_turn(t[:, :1]) if full else one((n0, 1, n2))
+    pole1 = half_turn(t[:, -1:]) if full else one((n0, 1, n2))
+    t = np.concatenate([pole0, t, pole1], axis=1)
+    p = np.concatenate([p[:, :, -1:] if full else one((n0, n1, 1)), p,
+                        p[:, :, :1] if full else one((n0, n1, 1))], axis=2)
+    return (r[:-1] * r[1:], t[:, :-1] * t[:, 1:], p[:, :, :-1] * p[:, :, 1:])
+
+
 def sweep_spherical(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, rule, full, forward, flip, w_min, inv_area,
                     phi, phia, tally, band_rows=16, handover=-1.0, diffusive=None, Q=None,
                     k_end=None):

@@ -8,10 +8,12 @@ cubes, so each transfer has its own length:
     radial dr,    along theta r dtheta,    along phi r sin(theta) dphi,
 
 and each cell holds half-step transmittance and decay for each of the three (Tr, Tt, Tp and
-Dr, Dt, Dp, see lights/point.py). A transfer src -> dst is attenuated by T[src] T[dst] of its
+Dr, Dt, Dp, :func:`cell_factors`). A transfer src -> dst is attenuated by T[src] T[dst] of its
 direction and its anisotropy decays by D[src] D[dst], both applied by the sender, so pending
 packets (R, Ra) are what has arrived at a cell's centre. What leaves the domain crosses only
-the sender's half cell. The split shares are those of a cube (the six principal ordinates).
+the sender's half cell. The products are taken once per face before the sweeps
+(:func:`face_factors`), so a send reads one (T, D) pair per neighbour. The split shares are
+those of a cube (the six principal ordinates).
 
 Fluence: a visit of power W adds W / (r^2 Omega) to phi (Omega: the cell's solid angle), its
 power per area at the cell's centre radius, so that in vacuum phi = I / r^2 exactly at every
@@ -91,6 +93,60 @@ def cell_factors(sigma_t, sigma_s, g, params, paper, Tr, Tt, Tp, Dr, Dt, Dp, han
                 if ss > 0.0 and st > 0.0:
                     f = -math.expm1(-(sa + ss * (1.0 - gg)) * s_mean)
                 handover[k, i, j] = f
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def face_factors(Tr, Tt, Tp, Dr, Dt, Dp, full, Fr, Ft, Fp):
+    """The transmittance and decay of a transfer across each face, (T, D) in the last axis of
+    Fr float32 (n_r + 1, n_theta, n_phi, 2), Ft (n_r, n_theta + 1, n_phi, 2) and Fp (n_r,
+    n_theta, n_phi + 1, 2): the product of the half steps (:func:`cell_factors`) of the two
+    cells it joins. Face k of Fr lies between shells k - 1 and k, face i of Ft between rows
+    i - 1 and i, face j of Fp between columns j - 1 and j, so cell (k, i, j) sends out across
+    Fr[k + 1] and in across Fr[k], and so on. At the domain's edges a face holds what a part
+    crosses there: the sender's half step where it leaves (outer sphere; a cone's inner sphere
+    and lateral faces), times the receiver's on a full sphere where it passes the light (inner
+    face of shell 0: the antipodal cell (n_theta - 1 - i, j + n_phi / 2)), crosses a pole (first
+    and last faces of Ft: the cell at phi + pi in the same row) or wraps in phi (first and last
+    faces of Fp: columns 0 and n_phi - 1)."""
+    n0, n1, n2 = Tr.shape
+    half = n2 // 2
+    one = np.float32(1.0)
+    for k in nb.prange(n0 + 1):
+        for i in range(n1):
+            if k == 0:                      # the inner face of shell 0
+                ia = n1 - 1 - i
+                for j in range(n2):
+                    ja = (j + half) % n2
+                    Fr[0, i, j, 0] = Tr[0, i, j] * (Tr[0, ia, ja] if full else one)
+                    Fr[0, i, j, 1] = Dr[0, i, j] * (Dr[0, ia, ja] if full else one)
+            elif k == n0:                   # the outer sphere
+                for j in range(n2):
+                    Fr[k, i, j, 0] = Tr[k - 1, i, j]
+                    Fr[k, i, j, 1] = Dr[k - 1, i, j]
+            else:
+                for j in range(n2):
+                    Fr[k, i, j, 0] = Tr[k - 1, i, j] * Tr[k, i, j]
+                    Fr[k, i, j, 1] = Dr[k - 1, i, j] * Dr[k, i, j]
+        if k == n0:
+            continue
+        for i in range(n1 + 1):
+            if i == 0 or i == n1:           # a pole: across it to phi + pi, or out of a cone
+                ie = 0 if i == 0 else n1 - 1
+                for j in range(n2):
+                    jp = (j + half) % n2
+                    Ft[k, i, j, 0] = Tt[k, ie, j] * (Tt[k, ie, jp] if full else one)
+                    Ft[k, i, j, 1] = Dt[k, ie, j] * (Dt[k, ie, jp] if full else one)
+            else:
+                for j in range(n2):
+                    Ft[k, i, j, 0] = Tt[k, i - 1, j] * Tt[k, i, j]
+                    Ft[k, i, j, 1] = Dt[k, i - 1, j] * Dt[k, i, j]
+        for i in range(n1):
+            for j in range(1, n2):
+                Fp[k, i, j, 0] = Tp[k, i, j - 1] * Tp[k, i, j]
+                Fp[k, i, j, 1] = Dp[k, i, j - 1] * Dp[k, i, j]
+            for j, je in ((0, 0), (n2, n2 - 1)):    # wrapping in phi, or out of a cone
+                Fp[k, i, j, 0] = Tp[k, i, je] * (Tp[k, i, n2 - 1 - je] if full else one)
+                Fp[k, i, j, 1] = Dp[k, i, je] * (Dp[k, i, n2 - 1 - je] if full else one)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -211,22 +267,18 @@ def splat_to_grid(Q, centre, frame, params, grid_origin, h, grid_frame, region, 
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _send(R, Ra, k, i, j, e, ea, T, D):
-    """Deposit a part after its transfer (transmittance T, decay D); returns the power absorbed
-    on the way."""
-    R[k, i, j] += e * T
-    Ra[k, i, j] += ea * T * D
-    return e * (np.float32(1.0) - T)
-
-
-@nb.njit(inline="always", fastmath=True, cache=True)
-def _leave(absorbed, escaped, R, Ra, k_end, k, i, j, e, ea, T, D):
-    """:func:`_send`, unless cell (k, i, j) lies beyond the medium's box (k >= k_end[i, j],
+def _move(absorbed, escaped, R, Ra, k_end, k, i, j, e, ea, F):
+    """Send part (e, e a) across a face with factors F = (T, D) (:func:`face_factors`) to cell
+    (k, i, j), unless that cell lies beyond the medium's box (k >= k_end[i, j],
     :func:`exit_shells`): then the part has left the box for good and is added to ``escaped``.
     Returns the running tallies (absorbed on the way, escaped)."""
+    T = F[0]
+    absorbed += e * (np.float32(1.0) - T)
     if k >= k_end[i, j]:
-        return absorbed + e * (np.float32(1.0) - T), escaped + e * T
-    return absorbed + _send(R, Ra, k, i, j, e, ea, T, D), escaped
+        return absorbed, escaped + e * T
+    R[k, i, j] += e * T
+    Ra[k, i, j] += ea * T * F[1]
+    return absorbed, escaped
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -277,19 +329,19 @@ def exit_shells(centre, frame, params, shape, lo, hi):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip,
-                          w_min, inv_area, phi, phia, bands, halo, anti, tally_b, handover,
-                          diffusive, Q, k_end):
+def sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area,
+                          phi, phia, bands, halo, anti, tally_b, handover, diffusive, Q, k_end):
     """One sweep over the shells (``forward``: outward), each band of theta rows by its own
     thread (as kernels.propagation.sweep_bands); cells with pending power <= w_min wait.
 
-    inv_area float32 (n_r, n_theta): 1 / (r^2 Omega). halo float32 (n_bands, 2, 2, n_r, n_phi)
-    parks side parts crossing into the band above/below; anti float32 (2, n_theta, n_phi)
-    parks what passes the light into the antipodal cell of shell 0 (full sphere; each target
-    has one sender). tally_b float64 (n_bands, 5): four tallies and the cells that sent.
-    k_end int32 (n_theta, n_phi) (:func:`exit_shells`): what reaches a cell at or beyond it has
-    left the medium's box and is tallied as transmitted, so nothing is pending there (a band
-    visits its shells up to its largest k_end only).
+    Fr, Ft, Fp: the faces' (T, D) (:func:`face_factors`). inv_area float32 (n_r, n_theta):
+    1 / (r^2 Omega). halo float32 (n_bands, 2, 2, n_r, n_phi) parks side parts crossing into the
+    band above/below; anti float32 (2, n_theta, n_phi) parks what passes the light into the
+    antipodal cell of shell 0 (full sphere; each target has one sender). tally_b float64
+    (n_bands, 5): four tallies and the cells that sent. k_end int32 (n_theta, n_phi)
+    (:func:`exit_shells`): what reaches a cell at or beyond it has left the medium's box and is
+    tallied as transmitted, so nothing is pending there (a band visits its shells up to its
+    largest k_end only).
     """
     n0, n1, n2 = R.shape
     half = n2 // 2
@@ -326,68 +378,59 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
                     phi[k, i, j] += w * inv_area[k, i]
                     phia[k, i, j] += wa * inv_area[k, i]
                     ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
-                    # radial: out one shell, in one shell
-                    tr = Tr[k, i, j]
-                    dr_ = Dr[k, i, j]
+                    # radial: out one shell (or out of the domain), in one shell
+                    F = Fr[k + 1, i, j]
                     if k + 1 < n0:
-                        absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k + 1, i, j, ef, efa,
-                                                 tr * Tr[k + 1, i, j], dr_ * Dr[k + 1, i, j])
+                        absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k + 1, i, j, ef, efa, F)
                     else:
-                        trans += ef * tr
-                        absorbed += ef * (one - tr)
+                        trans += ef * F[0]
+                        absorbed += ef * (one - F[0])
                     if eb > 0.0:
+                        F = Fr[k, i, j]
                         if k > 0:
-                            absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k - 1, i, j, eb, eba,
-                                                     tr * Tr[k - 1, i, j], dr_ * Dr[k - 1, i, j])
-                        elif full:
+                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k - 1, i, j, eb, eba, F)
+                        elif full:                  # past the light, out of the antipodal cell
                             ia = n1 - 1 - i
                             ja = (j + half) % n2
-                            T = tr * Tr[0, ia, ja]
-                            anti[0, ia, ja] += eb * T
-                            anti[1, ia, ja] -= eba * T * dr_ * Dr[0, ia, ja]
-                            absorbed += eb * (one - T)
+                            anti[0, ia, ja] += eb * F[0]
+                            anti[1, ia, ja] -= eba * F[0] * F[1]
+                            absorbed += eb * (one - F[0])
                         else:
-                            refl += eb * tr
-                            absorbed += eb * (one - tr)
+                            refl += eb * F[0]
+                            absorbed += eb * (one - F[0])
                     if es <= 0.0:
                         continue
-                    # phi neighbours: same band
-                    tp = Tp[k, i, j]
-                    dp_ = Dp[k, i, j]
-                    for jj in (j - 1, j + 1):
+                    # phi neighbours: same band (wrapping on a full sphere)
+                    for side in range(2):
+                        jj = j - 1 + 2 * side
+                        F = Fp[k, i, j + side]
                         if jj < 0 or jj >= n2:
                             if not full:
-                                side_out += es * tp
-                                absorbed += es * (one - tp)
+                                side_out += es * F[0]
+                                absorbed += es * (one - F[0])
                                 continue
                             jj = _wrap(jj, n2)
-                        absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k, i, jj, es, esa,
-                                                 tp * Tp[k, i, jj], dp_ * Dp[k, i, jj])
+                        absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, i, jj, es, esa, F)
                     # theta neighbours: across a pole (same row), in the band, or parked
-                    tt = Tt[k, i, j]
-                    dt_ = Dt[k, i, j]
                     for side in range(2):
                         ii = i - 1 + 2 * side
+                        F = Ft[k, i + side, j]
                         if ii < 0 or ii >= n1:
                             if not full:
-                                side_out += es * tt
-                                absorbed += es * (one - tt)
+                                side_out += es * F[0]
+                                absorbed += es * (one - F[0])
                                 continue
-                            jp = (j + half) % n2
-                            absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k, i, jp, es, esa,
-                                                     tt * Tt[k, i, jp], dt_ * Dt[k, i, jp])
+                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, i, (j + half) % n2,
+                                                    es, esa, F)
                         elif ii >= lo and ii < hi:
-                            absorbed, trans = _leave(absorbed, trans, R, Ra, k_end, k, ii, j, es, esa,
-                                                     tt * Tt[k, ii, j], dt_ * Dt[k, ii, j])
+                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, ii, j, es, esa, F)
                         elif k >= k_end[ii, j]:
-                            T = tt * Tt[k, ii, j]
-                            trans += es * T
-                            absorbed += es * (one - T)
+                            trans += es * F[0]
+                            absorbed += es * (one - F[0])
                         else:
-                            T = tt * Tt[k, ii, j]
-                            halo[b, side, 0, k, j] += es * T
-                            halo[b, side, 1, k, j] += esa * T * dt_ * Dt[k, ii, j]
-                            absorbed += es * (one - T)
+                            halo[b, side, 0, k, j] += es * F[0]
+                            halo[b, side, 1, k, j] += esa * F[0] * F[1]
+                            absorbed += es * (one - F[0])
         tally_b[b, REFLECTED] += refl
         tally_b[b, TRANSMITTED] += trans
         tally_b[b, SIDE_ESCAPED] += side_out
@@ -396,14 +439,13 @@ def sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, fo
 
 
 @nb.njit(fastmath=True, cache=True)
-def sweep(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip, w_min, inv_area, phi,
-          phia, bands, halo, anti, tally_b, handover, diffusive, Q, k_end):
+def sweep(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area, phi, phia, bands,
+          halo, anti, tally_b, handover, diffusive, Q, k_end):
     """One sweep (sweep_spherical_bands) and the delivery of parked parts; returns the power
     pending. Call it with numba.parallel_chunksize(1), as kernels.propagation.sweep."""
     tally_b[:] = 0.0
-    sweep_spherical_bands(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, full, forward, flip,
-                          w_min, inv_area, phi, phia, bands, halo, anti, tally_b, handover,
-                          diffusive, Q, k_end)
+    sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area,
+                          phi, phia, bands, halo, anti, tally_b, handover, diffusive, Q, k_end)
     deliver(R, Ra, bands, halo, anti)
     return total_energy(R)
 

@@ -213,6 +213,12 @@ class SphericalDomain:
         Ra = R * np.float32(1.0)          # a0 = 1: the light leaves radially
         Ra[0] *= Dr[0]
         budget.absorbed = float(np.sum(omega * (1.0 - Tr[0]), dtype=np.float64))
+        # the sweeps read each face's (T, D), the product of its two cells' half steps
+        n0, n1, n2 = shape
+        faces = (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
+                 np.empty((n0, n1, n2 + 1, 2), np.float32))
+        KS.face_factors(Tr, Tt, Tp, Dr, Dt, Dp, self.full, *faces)
+        del Tr, Tt, Tp, Dr, Dt, Dp
         phi = np.zeros(shape, np.float32)
         phia = np.zeros(shape, np.float32)
         handover = None
@@ -232,7 +238,7 @@ class SphericalDomain:
 
         def one_sweep(it, w_min):
             with numba.parallel_chunksize(1):     # bands to threads one at a time
-                left = KS.sweep(R, Ra, Tr, Tt, Tp, Dr, Dt, Dp, table, moment, self.full, it % 2 == 0,
+                left = KS.sweep(R, Ra, *faces, table, moment, self.full, it % 2 == 0,
                                 it % 4 >= 2, np.float32(w_min), inv_area, phi, phia, bands, halo, anti,
                                 tally_b, eps, diffusive, Q, k_end)
             tally[:] += tally_b[:, :4].sum(axis=0)
