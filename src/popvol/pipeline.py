@@ -153,7 +153,9 @@ def point_fields(domains: list[DomainSolution], n_lights: int, n_channels: int) 
         pts.offset[i, ds.channel] = total
         total += dom.n_cells
         pts.shape[i], pts.params[i], pts.frame[i], pts.full[i] = dom.shape, dom.params, dom.frame, dom.full
-    if blocks:
+    if len(blocks) == 1:                  # render_block's own C-ordered array: no copy
+        pts.fields = np.ascontiguousarray(blocks[0])
+    elif blocks:
         pts.fields = np.ascontiguousarray(np.concatenate(blocks, axis=1))
     return pts
 

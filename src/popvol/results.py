@@ -202,8 +202,7 @@ class Solution:
         event, what a path tracer's paths of that length give (Mitsuba volpath ``max_depth =
         2``), whatever ``method.gather`` says. Environment lights (a0 < 1) have no direct part,
         so they give nothing here."""
-        fields = self.points.fields.copy()
-        fields[0] = fields[1] = fields[2]
+        fields = np.repeat(self.points.fields[2:3], 3, axis=0)     # rows phi, phia := phi_dir
         return dataclasses.replace(self, phi=self.direct, phia=self.direct,
                                    phid=_empty(0, *self.phid.shape[1:]), flux=_empty(0, *self.flux.shape[1:]),
                                    points=dataclasses.replace(self.points, fields=fields), single=True)
