@@ -59,13 +59,26 @@ def test_spread():
     assert bench.spread([3.0, 1.0, 2.0, 10.0]) == {"min": 1.0, "median": 2.5, "max": 10.0, "n": 4}
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(not SHARED_VOLUME.exists(), reason=f"{SHARED_VOLUME} absent (../shared data)")
-def test_installed_bench_finds_its_scenes_and_says_what_it_skipped(tmp_path):
-    """pip install --target (no deps, no network; setuptools' build_py where this venv cannot build
-    a wheel offline) a copy of the source, then run the bench from
-    another folder with only that install on PYTHONPATH: with a data folder holding the WDAS
-    volume (the skip reasons of an empty one: test_data_folder_order_and_skip_reasons). Slow: the installed copy compiles its Numba kernels afresh."""
+#: run by the installed copy: what it finds from another folder, as JSON
+INSTALLED_PROBE = """
+import json, sys
+from popvol import bench
+found = bench.find_data(sys.argv[1])
+scenes = {}
+for name, (toml, overrides, _, _) in bench.SCENES.items():
+    if toml is None:
+        continue
+    volume = bench.locate(bench.WDAS_VOLUME, found)[0] if bench.needs_volume(toml) else None
+    scene = bench.load_bench_scene(toml, volume, **overrides)
+    scenes[name] = {"volume": None if volume is None else str(volume), "lights": len(scene.lights),  # a sky is 8 suns
+                    "voxels": int((scene.medium.density > 0).sum())}
+print(json.dumps({"machine": bench.machine(), "found": found, "scenes": scenes}))
+"""
+
+
+def install_copy(tmp_path) -> Path:
+    """pip install --target (no deps, no network; setuptools' build_py where this venv cannot
+    build a wheel offline) a copy of the source; returns the folder it went to."""
     src = tmp_path / "src_copy"
     ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.nbi", "*.nbc")
     shutil.copytree(REPO / "src", src / "src", ignore=ignore)
@@ -82,12 +95,50 @@ def test_installed_bench_finds_its_scenes_and_says_what_it_skipped(tmp_path):
         r = subprocess.run([sys.executable, "-c", "from setuptools import setup; setup()", "--quiet",
                             "build_py", "--build-lib", str(site)], capture_output=True, text=True, cwd=src)
     assert r.returncode == 0, r.stderr
+    return site
+
+
+@pytest.mark.skipif(not SHARED_VOLUME.exists(), reason=f"{SHARED_VOLUME} absent (../shared data)")
+def test_installed_bench_finds_its_scenes_and_the_volume(tmp_path):
+    """An installed copy of popvol, run from another folder with only that install on PYTHONPATH,
+    finds every packaged bench scene, the WDAS volume in the --data folder, and says it is
+    itself with no commit (the skip reasons of an empty folder:
+    test_data_folder_order_and_skip_reasons). It loads the scenes but runs no kernel: compiling
+    them all afresh for the copy took five minutes; test_quick_bench_runs_every_scene runs them
+    from this tree, whose bench is the same code."""
+    site = install_copy(tmp_path)
     assert (site / "popvol" / "bench_scenes" / "wdas_sun_sky.toml").is_file()
     data, cwd = tmp_path / "data", tmp_path / "elsewhere"
     for d in (data, cwd):
         d.mkdir()
     shutil.copy(SHARED_VOLUME, data / bench.WDAS_VOLUME)
     env = {**os.environ, "PYTHONPATH": str(site)}
+    env.pop("POPVOL_DATA", None)
+    r = subprocess.run([sys.executable, "-c", INSTALLED_PROBE, str(data)], capture_output=True,
+                       text=True, cwd=cwd, env=env)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    m = res["machine"]
+    assert Path(m["popvol_path"]).resolve() == (site / "popvol").resolve()    # the installed copy
+    assert m["popvol_commit"] == "unknown"
+    assert m["cpus"] >= 1 and m["numba_threads"] >= 1 and m["cpu_model"] and m["numpy"] and m["numba"]
+    assert res["found"]["from"] == "--data"
+    assert set(res["scenes"]) == {name for name, row in bench.SCENES.items() if row[0] is not None}
+    for name in WDAS_ROWS:
+        assert Path(res["scenes"][name]["volume"]).resolve() == (data / bench.WDAS_VOLUME).resolve()
+    assert res["scenes"]["wdas_sun_sky"]["lights"] == 9 and res["scenes"]["wdas_sun"]["lights"] == 1
+    assert all(row["voxels"] > 1000 for row in res["scenes"].values())
+
+
+@pytest.mark.skipif(not SHARED_VOLUME.exists(), reason=f"{SHARED_VOLUME} absent (../shared data)")
+def test_quick_bench_runs_every_scene(tmp_path):
+    """`popvol bench --quick --data DIR` from another folder: every row runs (the WDAS rows from
+    the volume in DIR), with the stages, peak memory and well-ordered figures of 2 runs each."""
+    data, cwd = tmp_path / "data", tmp_path / "elsewhere"
+    for d in (data, cwd):
+        d.mkdir()
+    shutil.copy(SHARED_VOLUME, data / bench.WDAS_VOLUME)
+    env = {**os.environ}
     env.pop("POPVOL_DATA", None)
 
     def run(folder, out):
@@ -98,8 +149,6 @@ def test_installed_bench_finds_its_scenes_and_says_what_it_skipped(tmp_path):
 
     res, table = run(data, tmp_path / "with.json")
     m = res["machine"]
-    assert Path(m["popvol_path"]).resolve() == (site / "popvol").resolve()    # the installed copy
-    assert m["popvol_commit"] == "unknown"
     assert m["cpus"] >= 1 and m["numba_threads"] >= 1 and m["cpu_model"] and m["numpy"] and m["numba"]
     assert res["quick"] and res["repeat"] == 2 and res["data"]["from"] == "--data"
     for name in ("demo", *WDAS_ROWS):
@@ -117,4 +166,3 @@ def test_installed_bench_finds_its_scenes_and_says_what_it_skipped(tmp_path):
     assert len(figs) > 30
     for f in figs:
         assert 0 <= f["min"] <= f["median"] <= f["max"] and f["n"] == 2, f
-

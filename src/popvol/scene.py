@@ -56,13 +56,23 @@ _CAMERA_KEYS = {"origin", "target", "up", "fov", "width", "height"}
 _BACKGROUND_KEYS = {"type", "radiance"}
 
 
+#: A scene file is a few kB of TOML (volumes live in their own files); Python's TOML parser
+#: takes about 2 s per MiB, so a larger file is refused before it is read.
+MAX_SCENE_FILE_BYTES = 4 * 2**20
+
+
 def read_scene_file(path) -> dict:
-    """The TOML of scene file ``path`` as a dict; a missing, unreadable or invalid file is a
-    one-line PopvolError naming it."""
+    """The TOML of scene file ``path`` as a dict; a missing, unreadable, oversized (above
+    MAX_SCENE_FILE_BYTES) or invalid file is a one-line PopvolError naming it."""
     p = Path(path)
     if not p.is_file():
         raise PopvolError(f"{p}: scene file not found" if not p.exists() else f"{p}: not a file")
     try:
+        size = p.stat().st_size
+        if size > MAX_SCENE_FILE_BYTES:
+            raise PopvolError(f"{p}: scene file is {size / 2**20:.1f} MiB; at most "
+                              f"{MAX_SCENE_FILE_BYTES // 2**20} MiB of TOML is read (a volume goes in its own "
+                              "file, named by [medium] file)")
         return tomllib.loads(p.read_text())
     except (OSError, UnicodeDecodeError) as e:
         raise PopvolError(f"{p}: cannot read scene file ({e})") from None

@@ -32,7 +32,6 @@ import copy
 import inspect
 import io
 import time
-import tomllib
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -43,7 +42,7 @@ from ..errors import PopvolError
 from ..io.images import auto_exposure, tonemap, write_image
 from ..pipeline import solve
 from ..renderer import render
-from ..scene import DEMO_SCENE, load_scene
+from ..scene import DEMO_SCENE, load_scene, read_scene_file
 from ..sequence import frames_text, load_sequence
 from . import settings as S
 
@@ -118,7 +117,7 @@ class Engine:
         if path is None:
             self.data, self.base_dir = copy.deepcopy(DEMO_SCENE), Path.cwd()
         else:
-            self.data, self.base_dir = tomllib.loads(Path(path).read_text()), Path(path).resolve().parent
+            self.data, self.base_dir = read_scene_file(path), Path(path).resolve().parent
         for name, v in (("--resolution", resolution), ("--draft-resolution", draft_resolution)):
             if isinstance(v, bool) or not isinstance(v, int) or not 2 <= v <= 4096:
                 raise PopvolError(f"{name} = {v!r} must be an integer in [2, 4096]")
