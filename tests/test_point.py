@@ -89,24 +89,44 @@ def _random_domain_state(dom, rng, tau):
 
 
 def faces(dom, cell_factors):
-    """kernels.spherical.face_factors of a domain's cell factors (Tr, Tt, Tp, Dr, Dt, Dp)."""
-    n0, n1, n2 = dom.shape
-    F = (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
-         np.empty((n0, n1, n2 + 1, 2), np.float32))
-    KS.face_factors(*cell_factors, dom.full, *F)
-    return F
+    """The faces' (T, D) of a domain's cell factors (Tr, Tt, Tp, Dr, Dt, Dp), by the NumPy twin
+    of kernels.spherical.face_factors, as the sweep takes them."""
+    return tuple(np.ascontiguousarray(f, np.float32) for f in ref.face_factors(*cell_factors, dom.full))
 
 
+@pytest.mark.parametrize("decay", ["poisson", "paper"])
 @pytest.mark.parametrize("where", ["inside", "far"])
-def test_face_factors_equal_numpy_twin(where, rng):
-    """kernels.spherical.face_factors against the twin that pads each factor array with its
-    neighbours across the domain's edges (antipodes, poles, phi's wrap on a full sphere; 1 where
-    a part leaves a cone), on random factors so a wrong neighbour cannot hide."""
+def test_face_factors_and_direct_fluence_equal_numpy_twins(where, decay, rng):
+    """kernels.spherical.face_factors (each face's transmittance and decay, the product of the
+    half steps of the two cells it joins, and each cell's hand-over factor) against the cells'
+    factors of walk.medium_factors and walk.handover_factor joined by the twin that pads them
+    with their neighbours across the domain's edges (antipodes, poles, phi's wrap on a full
+    sphere; nothing where a part leaves a cone), on optics drawn at random per cell (empty
+    cells and g < 0 among them) so a wrong neighbour cannot hide; and
+    kernels.spherical.direct_fluence against walk.direct_fluence along the rays."""
+    from popvol.walk import direct_fluence, handover_factor
     dom = spherical_domain(blob(n=12), np.array(POSITIONS[where]), 12)
     assert dom.full == (where == "inside")
-    cells = [rng.uniform(0.2, 1.0, dom.shape).astype(np.float32) for _ in range(6)]
-    for got, want in zip(faces(dom, cells), ref.face_factors(*cells, dom.full)):
-        np.testing.assert_allclose(got, want, rtol=1e-6)
+    sigma_t = (rng.uniform(0.0, 30.0, dom.shape) * (rng.random(dom.shape) > 0.3)).astype(np.float32)
+    sigma_s = (sigma_t * rng.uniform(0.5, 1.0, dom.shape)).astype(np.float32)
+    g = rng.uniform(-0.3, 0.95, dom.shape).astype(np.float32)
+    n0, n1, n2 = dom.shape
+    got = (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
+           np.empty((n0, n1, n2 + 1, 2), np.float32))
+    factor = np.empty(dom.shape, np.float32)
+    KS.face_factors(sigma_t, sigma_s, g, dom.params, decay == "paper", dom.full, *got, factor)
+    lengths = dom.transfer_lengths()
+    (Tr, Dr), (Tt, Dt), (Tp, Dp) = (medium_factors(sigma_t, sigma_s, g, s, decay) for s in lengths)
+    shape = lambda a: np.broadcast_to(a, dom.shape)
+    want = ref.face_factors(*(shape(a) for a in (Tr, Tt, Tp, Dr, Dt, Dp)), dom.full)
+    for F, W in zip(got, want):
+        np.testing.assert_allclose(F, W, rtol=1e-5, atol=1e-30)
+    assert (want[2][..., 1] == 0).any() == (decay == "paper")     # g <= 0 stops the lobe
+    np.testing.assert_allclose(factor, handover_factor(sigma_t, sigma_s, g, sum(lengths) / 3.0), rtol=1e-5,
+                               atol=1e-7)
+    out = np.empty(dom.shape, np.float32)
+    KS.direct_fluence(sigma_t, dom.params, out)
+    np.testing.assert_allclose(out, direct_fluence(sigma_t, dom.dr), rtol=1e-6)
 
 
 @pytest.mark.parametrize("where", ["inside", "far", "close above"])
@@ -154,32 +174,6 @@ def test_spherical_sweep_kernel_equals_numpy_twin(where, forward, flip, handover
     # the sweep conserves power: what is pending + absorbed + escaped + handed over = before
     Rx, _, _, _, Q, tally = out["numba"]
     assert Rx.sum(dtype=np.float64) + tally.sum() + Q[0].sum(dtype=np.float64) == pytest.approx(total, rel=1e-5)
-
-
-@pytest.mark.parametrize("decay", ["poisson", "paper"])
-@pytest.mark.parametrize("where", ["inside", "far"])
-def test_cell_factors_and_direct_fluence_equal_numpy_twins(where, decay):
-    """kernels.spherical.cell_factors (the half-step factors of the three step lengths and the
-    hand-over factor, in one pass) against walk.medium_factors and walk.handover_factor, and
-    kernels.spherical.direct_fluence against walk.direct_fluence along the rays, on a real
-    medium with empty cells."""
-    from popvol.walk import direct_fluence, handover_factor
-    dom = spherical_domain(blob(n=12, tau=6.0, albedo=0.8, g=0.5), np.array(POSITIONS[where]), 12)
-    sigma_t, sigma_s, g = dom.resample(blob(n=12, tau=6.0, albedo=0.8, g=0.5))
-    assert (sigma_t == 0).any() and (sigma_t > 0).any()
-    got = [np.empty(dom.shape, np.float32) for _ in range(7)]
-    KS.cell_factors(sigma_t, sigma_s, g, dom.params, decay == "paper", *got)
-    Tr, Tt, Tp, Dr, Dt, Dp, factor = got
-    lengths = dom.transfer_lengths()
-    for (T, D), s in zip(((Tr, Dr), (Tt, Dt), (Tp, Dp)), lengths):
-        T_ref, D_ref = medium_factors(sigma_t, sigma_s, g, s, decay)
-        np.testing.assert_allclose(T, T_ref, rtol=1e-6)
-        np.testing.assert_allclose(D, D_ref, rtol=1e-6)
-    np.testing.assert_allclose(factor, handover_factor(sigma_t, sigma_s, g, sum(lengths) / 3.0), rtol=1e-5,
-                               atol=1e-7)
-    out = np.empty(dom.shape, np.float32)
-    KS.direct_fluence(sigma_t, dom.params, out)
-    np.testing.assert_allclose(out, direct_fluence(sigma_t, dom.dr), rtol=1e-6)
 
 
 @pytest.mark.parametrize("where", POSITIONS)

@@ -7,13 +7,12 @@ cubes, so each transfer has its own length:
 
     radial dr,    along theta r dtheta,    along phi r sin(theta) dphi,
 
-and each cell holds half-step transmittance and decay for each of the three (Tr, Tt, Tp and
-Dr, Dt, Dp, :func:`cell_factors`). A transfer src -> dst is attenuated by T[src] T[dst] of its
-direction and its anisotropy decays by D[src] D[dst], both applied by the sender, so pending
-packets (R, Ra) are what has arrived at a cell's centre. What leaves the domain crosses only
-the sender's half cell. The products are taken once per face before the sweeps
-(:func:`face_factors`), so a send reads one (T, D) pair per neighbour. The split shares are
-those of a cube (the six principal ordinates).
+and a cell's half step of each has its own transmittance and decay. A transfer src -> dst is
+attenuated by T[src] T[dst] of its direction and its anisotropy decays by D[src] D[dst], both
+applied by the sender, so pending packets (R, Ra) are what has arrived at a cell's centre. What
+leaves the domain crosses only the sender's half cell. The products are computed once per face
+before the sweeps (:func:`face_factors`), so a send reads one (T, D) pair per neighbour. The
+split shares are those of a cube (the six principal ordinates).
 
 Fluence: a visit of power W adds W / (r^2 Omega) to phi (Omega: the cell's solid angle), its
 power per area at the cell's centre radius, so that in vacuum phi = I / r^2 exactly at every
@@ -46,107 +45,113 @@ def _local(frame, r, st, ct, sp, cp):
     return x, y, z
 
 
+#: the decay rate standing for g <= 0 with the ``paper`` decay (g^x = 0 for any x > 0)
+STOPPED = 1e30
+
+
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _half_step(s, sigma_a, sigma_s, g, paper):
-    """(T, D) of a step of length s (walk.medium_factors): T = exp(-sigma_a s / 2), D =
-    exp(-sigma_s s (1 - g) / 2), or g^(sigma_s s / 2) with the ``paper`` decay."""
-    x = 0.5 * s * sigma_s
+def _rates(sigma_t, sigma_s, g, k, i, j, paper):
+    """Cell (k, i, j)'s absorption and decay rates per unit length (a, d), so that a half step
+    of length s has T = exp(-a s / 2) and D = exp(-d s / 2) (walk.medium_factors):
+    a = sigma_a, d = sigma_s (1 - g), or with the ``paper`` decay (D = g^(sigma_s s / 2))
+    d = -sigma_s ln g, STOPPED for g <= 0."""
+    st = np.float64(sigma_t[k, i, j])
+    ss = np.float64(sigma_s[k, i, j])
+    if ss == 0.0:
+        return max(st, 0.0), 0.0
+    gg = np.float64(g[k, i, j])
     if paper:
-        d = max(g, 0.0) ** x if x > 0.0 else 1.0
-    else:
-        d = math.exp(-x * (1.0 - g))
-    return math.exp(-0.5 * s * sigma_a), d
+        return max(st - ss, 0.0), (-ss * math.log(gg) if gg > 0.0 else STOPPED)
+    return max(st - ss, 0.0), ss * (1.0 - gg)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _store(F, k, i, j, s, a, d):
+    """Face (k, i, j) of F gets T = exp(-a s / 2), D = exp(-d s / 2): the product of the half
+    steps of length s of the cells whose rates sum to (a, d)."""
+    F[k, i, j, 0] = math.exp(-0.5 * s * a) if a > 0.0 else 1.0
+    F[k, i, j, 1] = math.exp(-0.5 * s * d) if d > 0.0 else 1.0
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def cell_factors(sigma_t, sigma_s, g, params, paper, Tr, Tt, Tp, Dr, Dt, Dp, handover):
-    """Per cell, the half-step transmittance and anisotropy decay of a step along r, theta and
-    phi (lengths dr, r dtheta, r sin(theta) dphi), float32 into Tr, Tt, Tp and Dr, Dt, Dp, and
-    the hand-over factor of the mean of the three lengths into ``handover`` (all the domain's
-    shape; NumPy twins: walk.medium_factors and walk.handover_factor, which define them):
+def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover):
+    """The transmittance and decay of a transfer across each face, (T, D) in the last axis of
+    Fr float32 (n_r + 1, n_theta, n_phi, 2), Ft (n_r, n_theta + 1, n_phi, 2) and Fp (n_r,
+    n_theta, n_phi + 1, 2), and each cell's hand-over factor into ``handover`` float32 (the
+    domain's shape). A face's (T, D) is the product of the half steps of the two cells it
+    joins, each of its own step length along the face's axis (dr, r dtheta, r sin(theta) dphi;
+    both cells of a face share it):
 
       T = exp(-sigma_a s / 2),  D = exp(-sigma_s s (1 - g) / 2)  (``paper``: g^(sigma_s s / 2)),
-      f = 1 - exp(-sigma_tr s_mean) where sigma_s > 0 and sigma_t > 0, else 0.
-    """
+      f = 1 - exp(-sigma_tr s_mean) where sigma_s > 0 and sigma_t > 0, else 0,
+
+    s_mean the mean of the cell's three lengths (NumPy twins: walk.medium_factors and
+    walk.handover_factor per cell, tests/twins.face_factors per face). Face k of Fr lies
+    between shells k - 1 and k, face i of Ft between rows i - 1 and i, face j of Fp between
+    columns j - 1 and j, so cell (k, i, j) sends out across Fr[k + 1] and in across Fr[k], and
+    so on. At the domain's edges a face holds what a part crosses there: the sender's half step
+    where it leaves (outer sphere; a cone's inner sphere and lateral faces), times the
+    receiver's on a full sphere where it passes the light (inner face of shell 0: the antipodal
+    cell (n_theta - 1 - i, j + n_phi / 2)), crosses a pole (first and last faces of Ft: the
+    cell at phi + pi in the same row) or wraps in phi (first and last faces of Fp: columns 0
+    and n_phi - 1)."""
     n0, n1, n2 = sigma_t.shape
     r0, dr, t0, dt, dp = params[0], params[1], params[2], params[3], params[5]
-    for k in nb.prange(n0):
+    half = n2 // 2
+    for k in nb.prange(n0 + 1):
+        for i in range(n1):                 # radial faces, between shells k - 1 and k
+            for j in range(n2):
+                if k == 0:                  # the inner face of shell 0
+                    a, d = _rates(sigma_t, sigma_s, g, 0, i, j, paper)
+                    if full:
+                        a2, d2 = _rates(sigma_t, sigma_s, g, 0, n1 - 1 - i, (j + half) % n2, paper)
+                        a, d = a + a2, d + d2
+                elif k == n0:               # the outer sphere
+                    a, d = _rates(sigma_t, sigma_s, g, k - 1, i, j, paper)
+                else:
+                    a, d = _rates(sigma_t, sigma_s, g, k - 1, i, j, paper)
+                    a2, d2 = _rates(sigma_t, sigma_s, g, k, i, j, paper)
+                    a, d = a + a2, d + d2
+                _store(Fr, k, i, j, dr, a, d)
+        if k == n0:
+            continue
         r = r0 + (k + 0.5) * dr
-        for i in range(n1):
-            s_t = r * dt
+        s_t = r * dt
+        for i in range(n1 + 1):             # theta faces, between rows i - 1 and i
+            for j in range(n2):
+                if i == 0 or i == n1:       # a pole: across it to phi + pi, or out of a cone
+                    ie = 0 if i == 0 else n1 - 1
+                    a, d = _rates(sigma_t, sigma_s, g, k, ie, j, paper)
+                    if full:
+                        a2, d2 = _rates(sigma_t, sigma_s, g, k, ie, (j + half) % n2, paper)
+                        a, d = a + a2, d + d2
+                else:
+                    a, d = _rates(sigma_t, sigma_s, g, k, i - 1, j, paper)
+                    a2, d2 = _rates(sigma_t, sigma_s, g, k, i, j, paper)
+                    a, d = a + a2, d + d2
+                _store(Ft, k, i, j, s_t, a, d)
+        for i in range(n1):                 # phi faces, between columns j - 1 and j
             s_p = r * math.sin(t0 + (i + 0.5) * dt) * dp
+            for j in range(n2 + 1):
+                if j == 0 or j == n2:       # wrapping in phi, or out of a cone
+                    je = 0 if j == 0 else n2 - 1
+                    a, d = _rates(sigma_t, sigma_s, g, k, i, je, paper)
+                    if full:
+                        a2, d2 = _rates(sigma_t, sigma_s, g, k, i, n2 - 1 - je, paper)
+                        a, d = a + a2, d + d2
+                else:
+                    a, d = _rates(sigma_t, sigma_s, g, k, i, j - 1, paper)
+                    a2, d2 = _rates(sigma_t, sigma_s, g, k, i, j, paper)
+                    a, d = a + a2, d + d2
+                _store(Fp, k, i, j, s_p, a, d)
             s_mean = (dr + s_t + s_p) / 3.0
             for j in range(n2):
                 st = np.float64(sigma_t[k, i, j])
                 ss = np.float64(sigma_s[k, i, j])
-                gg = np.float64(g[k, i, j])
-                if st == 0.0 and ss == 0.0:     # empty space, most of a sphere about a cloud
-                    Tr[k, i, j] = Tt[k, i, j] = Tp[k, i, j] = 1.0
-                    Dr[k, i, j] = Dt[k, i, j] = Dp[k, i, j] = 1.0
-                    handover[k, i, j] = 0.0
-                    continue
-                sa = max(st - ss, 0.0)
-                Tr[k, i, j], Dr[k, i, j] = _half_step(dr, sa, ss, gg, paper)
-                Tt[k, i, j], Dt[k, i, j] = _half_step(s_t, sa, ss, gg, paper)
-                Tp[k, i, j], Dp[k, i, j] = _half_step(s_p, sa, ss, gg, paper)
                 f = 0.0
                 if ss > 0.0 and st > 0.0:
-                    f = -math.expm1(-(sa + ss * (1.0 - gg)) * s_mean)
+                    f = -math.expm1(-(max(st - ss, 0.0) + ss * (1.0 - np.float64(g[k, i, j]))) * s_mean)
                 handover[k, i, j] = f
-
-
-@nb.njit(parallel=True, fastmath=True, cache=True)
-def face_factors(Tr, Tt, Tp, Dr, Dt, Dp, full, Fr, Ft, Fp):
-    """The transmittance and decay of a transfer across each face, (T, D) in the last axis of
-    Fr float32 (n_r + 1, n_theta, n_phi, 2), Ft (n_r, n_theta + 1, n_phi, 2) and Fp (n_r,
-    n_theta, n_phi + 1, 2): the product of the half steps (:func:`cell_factors`) of the two
-    cells it joins. Face k of Fr lies between shells k - 1 and k, face i of Ft between rows
-    i - 1 and i, face j of Fp between columns j - 1 and j, so cell (k, i, j) sends out across
-    Fr[k + 1] and in across Fr[k], and so on. At the domain's edges a face holds what a part
-    crosses there: the sender's half step where it leaves (outer sphere; a cone's inner sphere
-    and lateral faces), times the receiver's on a full sphere where it passes the light (inner
-    face of shell 0: the antipodal cell (n_theta - 1 - i, j + n_phi / 2)), crosses a pole (first
-    and last faces of Ft: the cell at phi + pi in the same row) or wraps in phi (first and last
-    faces of Fp: columns 0 and n_phi - 1)."""
-    n0, n1, n2 = Tr.shape
-    half = n2 // 2
-    one = np.float32(1.0)
-    for k in nb.prange(n0 + 1):
-        for i in range(n1):
-            if k == 0:                      # the inner face of shell 0
-                ia = n1 - 1 - i
-                for j in range(n2):
-                    ja = (j + half) % n2
-                    Fr[0, i, j, 0] = Tr[0, i, j] * (Tr[0, ia, ja] if full else one)
-                    Fr[0, i, j, 1] = Dr[0, i, j] * (Dr[0, ia, ja] if full else one)
-            elif k == n0:                   # the outer sphere
-                for j in range(n2):
-                    Fr[k, i, j, 0] = Tr[k - 1, i, j]
-                    Fr[k, i, j, 1] = Dr[k - 1, i, j]
-            else:
-                for j in range(n2):
-                    Fr[k, i, j, 0] = Tr[k - 1, i, j] * Tr[k, i, j]
-                    Fr[k, i, j, 1] = Dr[k - 1, i, j] * Dr[k, i, j]
-        if k == n0:
-            continue
-        for i in range(n1 + 1):
-            if i == 0 or i == n1:           # a pole: across it to phi + pi, or out of a cone
-                ie = 0 if i == 0 else n1 - 1
-                for j in range(n2):
-                    jp = (j + half) % n2
-                    Ft[k, i, j, 0] = Tt[k, ie, j] * (Tt[k, ie, jp] if full else one)
-                    Ft[k, i, j, 1] = Dt[k, ie, j] * (Dt[k, ie, jp] if full else one)
-            else:
-                for j in range(n2):
-                    Ft[k, i, j, 0] = Tt[k, i - 1, j] * Tt[k, i, j]
-                    Ft[k, i, j, 1] = Dt[k, i - 1, j] * Dt[k, i, j]
-        for i in range(n1):
-            for j in range(1, n2):
-                Fp[k, i, j, 0] = Tp[k, i, j - 1] * Tp[k, i, j]
-                Fp[k, i, j, 1] = Dp[k, i, j - 1] * Dp[k, i, j]
-            for j, je in ((0, 0), (n2, n2 - 1)):    # wrapping in phi, or out of a cone
-                Fp[k, i, j, 0] = Tp[k, i, je] * (Tp[k, i, n2 - 1 - je] if full else one)
-                Fp[k, i, j, 1] = Dp[k, i, je] * (Dp[k, i, n2 - 1 - je] if full else one)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)

@@ -24,7 +24,8 @@ from ..kernels import propagation as KP
 from ..kernels import spherical as KS
 from ..medium import Medium
 from ..results import Budget, WalkResult
-from ..walk import default_max_iterations, handover_arrays, split_table32, sweep_until_converged
+from ..walk import (default_max_iterations, handover_arrays, medium_factors, split_table32,
+                    sweep_until_converged)
 from .base import HandOver, Light
 
 
@@ -175,8 +176,8 @@ class SphericalDomain:
 
     def transfer_lengths(self):
         """Lengths of a step along r, theta and phi from each cell's centre, broadcastable to
-        the domain's shape: dr, r dtheta, r sin(theta) dphi (kernels.spherical.cell_factors
-        computes them per cell; tests/test_point.py checks its factors against these)."""
+        the domain's shape: dr, r dtheta, r sin(theta) dphi (kernels.spherical.face_factors
+        computes them per face; tests/test_point.py checks its factors against these)."""
         r = self.radii[:, None, None]
         sin_t = np.sin(self.thetas)[None, :, None]
         return np.full((1, 1, 1), self.dr), r * self.dtheta, r * sin_t * self.dphi
@@ -202,23 +203,21 @@ class SphericalDomain:
         diffusion stage) the handed-over power and moment."""
         sigma_t, sigma_s, g = optics
         shape = self.shape
-        Tr, Tt, Tp, Dr, Dt, Dp, factor = (np.empty(shape, np.float32) for _ in range(7))
-        KS.cell_factors(sigma_t, sigma_s, g, self.params, method.decay == "paper", Tr, Tt, Tp, Dr, Dt, Dp,
-                        factor)
-        omega = np.broadcast_to(self.solid_angles[:, None], shape[1:])
-        budget = Budget(injected=float(omega.sum(dtype=np.float64)))
-        # pending power at the centres of shell 0: it has crossed half a cell (Tr[0])
-        R = np.zeros(shape, np.float32)
-        R[0] = omega * Tr[0]
-        Ra = R * np.float32(1.0)          # a0 = 1: the light leaves radially
-        Ra[0] *= Dr[0]
-        budget.absorbed = float(np.sum(omega * (1.0 - Tr[0]), dtype=np.float64))
         # the sweeps read each face's (T, D), the product of its two cells' half steps
         n0, n1, n2 = shape
         faces = (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
                  np.empty((n0, n1, n2 + 1, 2), np.float32))
-        KS.face_factors(Tr, Tt, Tp, Dr, Dt, Dp, self.full, *faces)
-        del Tr, Tt, Tp, Dr, Dt, Dp
+        factor = np.empty(shape, np.float32)
+        KS.face_factors(sigma_t, sigma_s, g, self.params, method.decay == "paper", self.full, *faces, factor)
+        omega = np.broadcast_to(self.solid_angles[:, None], shape[1:])
+        budget = Budget(injected=float(omega.sum(dtype=np.float64)))
+        # pending power at the centres of shell 0: it has crossed half a cell (T0, D0)
+        T0, D0 = medium_factors(sigma_t[0], sigma_s[0], g[0], self.dr, method.decay)
+        R = np.zeros(shape, np.float32)
+        R[0] = omega * T0
+        Ra = R * np.float32(1.0)          # a0 = 1: the light leaves radially
+        Ra[0] *= D0
+        budget.absorbed = float(np.sum(omega * (1.0 - T0), dtype=np.float64))
         phi = np.zeros(shape, np.float32)
         phia = np.zeros(shape, np.float32)
         handover = None
