@@ -219,7 +219,7 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                         s_up = sig if step == 0 else _bilinear(prev, stencil, 2, ch)
                         sbar = 0.5 * (s_up + sig)
                         tau = sbar * path
-                        t = math.exp(-tau)
+                        t = math.exp(-tau) if tau > 0.0 else 1.0     # no call in empty space
                         # (1 - T) / sigma: the segment's emission weight, -> path as sigma -> 0
                         wgt = path * (1.0 - tau * (0.5 - tau / 6.0)) if tau < 1e-4 else (1.0 - t) / sbar
                     cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
