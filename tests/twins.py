@@ -515,11 +515,7 @@ def face_factors(Tr, Tt, Tp, Dr, Dt, Dp, full):
     (inner sphere), the cell at phi + pi (poles) or the other end (phi) on a full sphere, and 1
     (nothing: the part leaves) elsewhere."""
     n0, n1, n2 = Tr.shape
-    out = []
-    for T, D in ((Tr, Dr), (Tt, Dt), (Tp, Dp)):
-        pair = np.stack([T, D], -1).astype(np.float64)
-        out.append(pair)
-    (r, t, p) = out
+    r, t, p = (np.stack([T, D], -1).astype(np.float64) for T, D in ((Tr, Dr), (Tt, Dt), (Tp, Dp)))
     one = lambda shape: np.ones(shape + (2,))
     half_turn = lambda x: np.roll(x, -(n2 // 2), axis=-2)      # cell (., ., j + n_phi / 2)
     inner = half_turn(r[0, ::-1])[None] if full else one((1, n1, n2))
