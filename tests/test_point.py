@@ -110,9 +110,7 @@ def test_face_factors_and_direct_fluence_equal_numpy_twins(where, decay, rng):
     sigma_t = (rng.uniform(0.0, 30.0, dom.shape) * (rng.random(dom.shape) > 0.3)).astype(np.float32)
     sigma_s = (sigma_t * rng.uniform(0.5, 1.0, dom.shape)).astype(np.float32)
     g = rng.uniform(-0.3, 0.95, dom.shape).astype(np.float32)
-    n0, n1, n2 = dom.shape
-    got = (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
-           np.empty((n0, n1, n2 + 1, 2), np.float32))
+    got = KS.empty_faces(dom.shape)
     factor = np.empty(dom.shape, np.float32)
     KS.face_factors(sigma_t, sigma_s, g, dom.params, decay == "paper", dom.full, *got, factor)
     lengths = dom.transfer_lengths()

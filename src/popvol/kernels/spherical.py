@@ -66,21 +66,43 @@ def _rates(sigma_t, sigma_s, g, k, i, j, paper):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _store(F, k, i, j, s, a, d):
-    """Face (k, i, j) of F gets T = exp(-a s / 2), D = exp(-d s / 2): the product of the half
-    steps of length s of the cells whose rates sum to (a, d)."""
+def _joined(medium, k, i, j, k2, i2, j2, both):
+    """The rates (:func:`_rates`) of cell (k, i, j), plus those of cell (k2, i2, j2) if
+    ``both``: what a part crossing the face between them meets (only the first where it leaves
+    the domain). medium: (sigma_t, sigma_s, g, paper)."""
+    sigma_t, sigma_s, g, paper = medium
+    a, d = _rates(sigma_t, sigma_s, g, k, i, j, paper)
+    if both:
+        a2, d2 = _rates(sigma_t, sigma_s, g, k2, i2, j2, paper)
+        a, d = a + a2, d + d2
+    return a, d
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _store(F, k, i, j, s, rates):
+    """Face (k, i, j) of F gets T = exp(-a s / 2), D = exp(-d s / 2), (a, d) = ``rates``: the
+    product of the half steps of length s of the cells whose rates sum to (a, d)."""
+    a, d = rates
     F[k, i, j, 0] = math.exp(-0.5 * s * a) if a > 0.0 else 1.0
     F[k, i, j, 1] = math.exp(-0.5 * s * d) if d > 0.0 else 1.0
+
+
+def empty_faces(shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Uninitialised float32 face arrays (Fr, Ft, Fp) of a domain of ``shape`` (n_r, n_theta,
+    n_phi), as :func:`face_factors` fills them."""
+    n0, n1, n2 = shape
+    return (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
+            np.empty((n0, n1, n2 + 1, 2), np.float32))
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover):
     """The transmittance and decay of a transfer across each face, (T, D) in the last axis of
     Fr float32 (n_r + 1, n_theta, n_phi, 2), Ft (n_r, n_theta + 1, n_phi, 2) and Fp (n_r,
-    n_theta, n_phi + 1, 2), and each cell's hand-over factor into ``handover`` float32 (the
-    domain's shape). A face's (T, D) is the product of the half steps of the two cells it
-    joins, each of its own step length along the face's axis (dr, r dtheta, r sin(theta) dphi;
-    both cells of a face share it):
+    n_theta, n_phi + 1, 2) (:func:`empty_faces`), and each cell's hand-over factor into
+    ``handover`` float32 (the domain's shape). A face's (T, D) is the product of the half steps
+    of the two cells it joins, each of its own step length along the face's axis (dr, r dtheta,
+    r sin(theta) dphi; both cells of a face share it):
 
       T = exp(-sigma_a s / 2),  D = exp(-sigma_s s (1 - g) / 2)  (``paper``: g^(sigma_s s / 2)),
       f = 1 - exp(-sigma_tr s_mean) where sigma_s > 0 and sigma_t > 0, else 0,
@@ -98,21 +120,17 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
     n0, n1, n2 = sigma_t.shape
     r0, dr, t0, dt, dp = params[0], params[1], params[2], params[3], params[5]
     half = n2 // 2
+    m = (sigma_t, sigma_s, g, paper)
     for k in nb.prange(n0 + 1):
         for i in range(n1):                 # radial faces, between shells k - 1 and k
             for j in range(n2):
-                if k == 0:                  # the inner face of shell 0
-                    a, d = _rates(sigma_t, sigma_s, g, 0, i, j, paper)
-                    if full:
-                        a2, d2 = _rates(sigma_t, sigma_s, g, 0, n1 - 1 - i, (j + half) % n2, paper)
-                        a, d = a + a2, d + d2
+                if k == 0:                  # the inner face of shell 0: past the light
+                    rates = _joined(m, 0, i, j, 0, n1 - 1 - i, (j + half) % n2, full)
                 elif k == n0:               # the outer sphere
-                    a, d = _rates(sigma_t, sigma_s, g, k - 1, i, j, paper)
+                    rates = _joined(m, k - 1, i, j, k - 1, i, j, False)
                 else:
-                    a, d = _rates(sigma_t, sigma_s, g, k - 1, i, j, paper)
-                    a2, d2 = _rates(sigma_t, sigma_s, g, k, i, j, paper)
-                    a, d = a + a2, d + d2
-                _store(Fr, k, i, j, dr, a, d)
+                    rates = _joined(m, k - 1, i, j, k, i, j, True)
+                _store(Fr, k, i, j, dr, rates)
         if k == n0:
             continue
         r = r0 + (k + 0.5) * dr
@@ -121,36 +139,25 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
             for j in range(n2):
                 if i == 0 or i == n1:       # a pole: across it to phi + pi, or out of a cone
                     ie = 0 if i == 0 else n1 - 1
-                    a, d = _rates(sigma_t, sigma_s, g, k, ie, j, paper)
-                    if full:
-                        a2, d2 = _rates(sigma_t, sigma_s, g, k, ie, (j + half) % n2, paper)
-                        a, d = a + a2, d + d2
+                    rates = _joined(m, k, ie, j, k, ie, (j + half) % n2, full)
                 else:
-                    a, d = _rates(sigma_t, sigma_s, g, k, i - 1, j, paper)
-                    a2, d2 = _rates(sigma_t, sigma_s, g, k, i, j, paper)
-                    a, d = a + a2, d + d2
-                _store(Ft, k, i, j, s_t, a, d)
+                    rates = _joined(m, k, i - 1, j, k, i, j, True)
+                _store(Ft, k, i, j, s_t, rates)
         for i in range(n1):                 # phi faces, between columns j - 1 and j
             s_p = r * math.sin(t0 + (i + 0.5) * dt) * dp
             for j in range(n2 + 1):
                 if j == 0 or j == n2:       # wrapping in phi, or out of a cone
                     je = 0 if j == 0 else n2 - 1
-                    a, d = _rates(sigma_t, sigma_s, g, k, i, je, paper)
-                    if full:
-                        a2, d2 = _rates(sigma_t, sigma_s, g, k, i, n2 - 1 - je, paper)
-                        a, d = a + a2, d + d2
+                    rates = _joined(m, k, i, je, k, i, n2 - 1 - je, full)
                 else:
-                    a, d = _rates(sigma_t, sigma_s, g, k, i, j - 1, paper)
-                    a2, d2 = _rates(sigma_t, sigma_s, g, k, i, j, paper)
-                    a, d = a + a2, d + d2
-                _store(Fp, k, i, j, s_p, a, d)
+                    rates = _joined(m, k, i, j - 1, k, i, j, True)
+                _store(Fp, k, i, j, s_p, rates)
             s_mean = (dr + s_t + s_p) / 3.0
             for j in range(n2):
-                st = np.float64(sigma_t[k, i, j])
-                ss = np.float64(sigma_s[k, i, j])
                 f = 0.0
-                if ss > 0.0 and st > 0.0:
-                    f = -math.expm1(-(max(st - ss, 0.0) + ss * (1.0 - np.float64(g[k, i, j]))) * s_mean)
+                if sigma_s[k, i, j] > 0.0 and sigma_t[k, i, j] > 0.0:
+                    a, d = _rates(sigma_t, sigma_s, g, k, i, j, False)     # sigma_tr = a + d
+                    f = -math.expm1(-(a + d) * s_mean)
                 handover[k, i, j] = f
 
 

@@ -204,9 +204,7 @@ class SphericalDomain:
         sigma_t, sigma_s, g = optics
         shape = self.shape
         # the sweeps read each face's (T, D), the product of its two cells' half steps
-        n0, n1, n2 = shape
-        faces = (np.empty((n0 + 1, n1, n2, 2), np.float32), np.empty((n0, n1 + 1, n2, 2), np.float32),
-                 np.empty((n0, n1, n2 + 1, 2), np.float32))
+        faces = KS.empty_faces(shape)
         factor = np.empty(shape, np.float32)
         KS.face_factors(sigma_t, sigma_s, g, self.params, method.decay == "paper", self.full, *faces, factor)
         omega = np.broadcast_to(self.solid_angles[:, None], shape[1:])
