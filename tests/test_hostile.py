@@ -393,3 +393,40 @@ def test_toml_text_loads_or_refuses_with_one_line(text):
                 load_scene(path)
             except PopvolError as e:
                 one_line(str(e))
+
+
+def test_world_fields_are_allocated_without_huge_page_advice_and_the_setting_is_restored(monkeypatch):
+    """popvol.solve allocates its world fields (arrays of 5 or more axes ending in the medium's
+    shape) inside domains.small_pages, NumPy's huge-page advice off: sparse writes into calloc'd
+    2 MiB pages stall on memory compaction. The block leaves NumPy's setting as it found it,
+    also when it raises."""
+    from numpy._core import multiarray
+    from popvol import domains
+    states = []
+    real_zeros = np.zeros
+
+    def zeros(*a, **k):
+        now = multiarray._set_madvise_hugepage(False)
+        multiarray._set_madvise_hugepage(now)
+        out = real_zeros(*a, **k)
+        states.append((out.shape, now))
+        return out
+
+    for before in (True, False):
+        multiarray._set_madvise_hugepage(before)
+        try:
+            with domains.small_pages():
+                assert multiarray._set_madvise_hugepage(False) is False
+            assert multiarray._set_madvise_hugepage(before) is before
+            with pytest.raises(RuntimeError), domains.small_pages():
+                raise RuntimeError
+            assert multiarray._set_madvise_hugepage(before) is before
+        finally:
+            multiarray._set_madvise_hugepage(True)
+    scene = scene_from_dict({"medium": {"resolution": 8}, "lights": [{"direction": [0, -1, 0]}],
+                             "method": {"resolution": 8}})
+    monkeypatch.setattr("popvol.pipeline.np.zeros", zeros)
+    popvol.solve(scene)
+    fields = [now for shape, now in states if len(shape) >= 5 and shape[-3:] == scene.medium.shape]
+    assert len(fields) == 3 and not any(fields)     # phi, phid, flux (phia and direct: zeros_like)
+    assert multiarray._set_madvise_hugepage(True) is True

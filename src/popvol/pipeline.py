@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from .diffusion import solve_diffusion, warm_guess
-from .domains import check_memory
+from .domains import check_memory, small_pages
 from .errors import PopvolError
 from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
@@ -192,17 +192,19 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                  f"light(s) x {n_ch} channel(s) on a {'x'.join(map(str, med.shape))} grid")
     # zeros: the fields are written only where the renderer reads them (voxels_seen); calloc'd
     # pages that are never written cost nothing
-    phi = np.zeros((n, n_ch) + med.shape, np.float32)
-    phia = np.zeros_like(phi)
-    direct = np.zeros_like(phi)
+    with small_pages():
+        phi = np.zeros((n, n_ch) + med.shape, np.float32)
+        phia = np.zeros_like(phi)
+        direct = np.zeros_like(phi)
     diffusion = scene.method.isotropic == "diffusion"
     ordinates = scene.method.solver == "ordinates"
     n_diffuse = n if diffusion or ordinates else 0
     if n_diffuse:
         check_memory(4 * n * n_ch * med.density.size * 4, f"{med.source}: medium",
                      f"diffusion fields of {n} light(s) x {n_ch} channel(s)")
-    phid = np.zeros((n_diffuse, n_ch) + (med.shape if n_diffuse else (1, 1, 1)), np.float32)
-    flux = np.zeros((n_diffuse, n_ch, 3) + (med.shape if n_diffuse else (1, 1, 1)), np.float32)
+    with small_pages():
+        phid = np.zeros((n_diffuse, n_ch) + (med.shape if n_diffuse else (1, 1, 1)), np.float32)
+        flux = np.zeros((n_diffuse, n_ch, 3) + (med.shape if n_diffuse else (1, 1, 1)), np.float32)
     lobe_cap = np.full(n, MAX_DIFFUSE_ANISOTROPY)
     key = (medium_key(med), method_key(scene.method))
     old = {}
