@@ -186,3 +186,17 @@ def test_boundary_weight_kernel_equals_numpy_twin(rng):
     for shape in ((9, 7, 8), (5, 1, 6)):
         mask = rng.random(shape) > 0.4
         np.testing.assert_allclose(diffusion.boundary_weight(mask), ref.boundary_weight(mask), rtol=1e-5, atol=1e-6)
+
+
+def test_coarsen_kernel_equals_numpy_twin(rng):
+    """diffusion.coarsen (kernels.sampling.block_sums) against its reshaping twin, on shapes that
+    are and are not multiples of the factor, float32 and float64 cells, both modes."""
+    import twins as ref
+    for shape in ((9, 7, 8), (5, 1, 6), (8, 8, 4)):
+        for dtype in (np.float32, np.float64):
+            x = (rng.random(shape) * 10.0 ** rng.uniform(-3, 3, shape)).astype(dtype)
+            for factor in (1, 2, 3):
+                for how in ("sum", "mean"):
+                    got = diffusion.coarsen(x, factor, how)
+                    assert got.dtype == np.float64
+                    np.testing.assert_allclose(got, ref.coarsen(x, factor, how), rtol=1e-12, atol=0.0)

@@ -130,7 +130,7 @@ def test_block_mean_is_the_mean_of_each_block():
         np.testing.assert_allclose(got[:, i, j, k], expect, rtol=1e-6)
 
 
-def test_block_means_kernel_equals_numpy_twin():
+def test_block_sums_kernel_equals_numpy_twin():
     x = np.random.default_rng(2).random((3, 2, 11, 7, 9)).astype(np.float32)
     for factor in (1, 2, 3, 4):
         np.testing.assert_allclose(renderer.block_mean(x, factor), ref.block_mean(x, factor), rtol=1e-5)

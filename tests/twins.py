@@ -707,9 +707,9 @@ def boundary_weight(mask) -> np.ndarray:
 
 
 def block_mean(x: np.ndarray, factor: int) -> np.ndarray:
-    """Twin of kernels.sampling.block_means (through renderer.block_mean): float32, the mean of x
-    (..., nx, ny, nz) over blocks of factor^3 voxels along its last three axes (the blocks at
-    the far edges over the voxels they hold), one axis at a time."""
+    """Twin of kernels.sampling.block_sums with ``held`` (through renderer.block_mean): float32,
+    the mean of x (..., nx, ny, nz) over blocks of factor^3 voxels along its last three axes
+    (the blocks at the far edges over the voxels they hold), one axis at a time."""
     out = np.asarray(x, np.float32)
     for axis in range(out.ndim - 3, out.ndim):
         n = out.shape[axis]
@@ -724,6 +724,16 @@ def block_mean(x: np.ndarray, factor: int) -> np.ndarray:
     return out
 
 
+
+def coarsen(x: np.ndarray, factor: int, how: str = "sum") -> np.ndarray:
+    """Twin of diffusion.coarsen (kernels.sampling.block_sums without ``held``): float64, the
+    sum of x (nx, ny, nz) over blocks of factor^3 cells, or that sum / factor^3 (``how`` =
+    "mean"), the grid padded with zeros to a multiple of factor, by reshaping."""
+    n = [-(-s // factor) * factor for s in x.shape]
+    pad = np.zeros(n)
+    pad[: x.shape[0], : x.shape[1], : x.shape[2]] = x
+    b = pad.reshape(n[0] // factor, factor, n[1] // factor, factor, n[2] // factor, factor).sum(axis=(1, 3, 5))
+    return b if how == "sum" else b / factor ** 3
 
 
 def upsample(coarse: np.ndarray, factor: int, shape: tuple) -> np.ndarray:

@@ -8,7 +8,7 @@ import numpy as np
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, gathered_source
 from .kernels.render import render_kernel, substeps
-from .kernels.sampling import block_means, densest_near_blocks, upsample_blocks
+from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import seen_voxels, solve, voxels_seen
 from .results import Solution
@@ -294,7 +294,7 @@ def block_mean(x: np.ndarray, factor: int) -> np.ndarray:
     n = x.shape[-3:]
     flat = np.ascontiguousarray(x, np.float32).reshape((-1,) + n)
     out = np.empty((flat.shape[0],) + tuple(-(-s // factor) for s in n), np.float32)
-    block_means(flat, factor, out)
+    block_sums(flat, factor, True, out)
     return out.reshape(x.shape[:-3] + out.shape[1:])
 
 

@@ -119,10 +119,12 @@ def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, nee
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def block_means(x, factor, out):
-    """out float32 (m, bx, by, bz): the mean of x (m, nx, ny, nz) over blocks of factor^3
-    voxels, b = ceil(n / factor) per axis; a block at a far edge averages the voxels it holds.
-    NumPy twin: tests/twins.py (block_mean)."""
+def block_sums(x, factor, held, out):
+    """out (m, bx, by, bz): the sum of x (m, nx, ny, nz) over blocks of factor^3 voxels, b =
+    ceil(n / factor) per axis, divided by the voxels the block holds if ``held`` (the mean; a
+    block at a far edge averages the voxels it holds), else not (the sum, or the mean of the
+    grid padded with zeros once divided by factor^3). Each block is summed by one thread in a
+    fixed order, in float64. NumPy twins: tests/twins.py (block_mean, coarsen)."""
     m, nx, ny, nz = x.shape
     bx, by, bz = out.shape[1], out.shape[2], out.shape[3]
     for t in nb.prange(m * bx):         # one slab of blocks each, its voxels read in memory order
@@ -142,7 +144,8 @@ def block_means(x, factor, out):
         for j in range(by):
             nb_ = min(factor, ny - j * factor)
             for l in range(bz):
-                out[k, i, j, l] = acc[j, l] / ((a1 - a0) * nb_ * min(factor, nz - l * factor))
+                count = (a1 - a0) * nb_ * min(factor, nz - l * factor) if held else 1
+                out[k, i, j, l] = acc[j, l] / count
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
