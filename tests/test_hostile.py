@@ -428,5 +428,5 @@ def test_world_fields_are_allocated_without_huge_page_advice_and_the_setting_is_
     monkeypatch.setattr("popvol.pipeline.np.zeros", zeros)
     popvol.solve(scene)
     fields = [now for shape, now in states if len(shape) >= 5 and shape[-3:] == scene.medium.shape]
-    assert len(fields) == 3 and not any(fields)     # phi, phid, flux (phia and direct: zeros_like)
+    assert len(fields) == 5 and not any(fields)     # phi, phia, direct, phid, flux
     assert multiarray._set_madvise_hugepage(True) is True

@@ -190,12 +190,11 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     n_ch = med.n_channels
     check_memory(3 * n * n_ch * med.density.size * 4, f"{med.source}: medium", f"fields of {n} "
                  f"light(s) x {n_ch} channel(s) on a {'x'.join(map(str, med.shape))} grid")
-    # zeros: the fields are written only where the renderer reads them (voxels_seen); calloc'd
-    # pages that are never written cost nothing
+    # np.zeros (calloc), not zeros_like (which writes its zeros): the fields are written only
+    # where the renderer reads them (voxels_seen), and pages never written (an environment
+    # light's direct field) cost nothing
     with small_pages():
-        phi = np.zeros((n, n_ch) + med.shape, np.float32)
-        phia = np.zeros_like(phi)
-        direct = np.zeros_like(phi)
+        phi, phia, direct = (np.zeros((n, n_ch) + med.shape, np.float32) for _ in range(3))
     diffusion = scene.method.isotropic == "diffusion"
     ordinates = scene.method.solver == "ordinates"
     n_diffuse = n if diffusion or ordinates else 0
