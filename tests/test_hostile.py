@@ -400,33 +400,37 @@ def test_world_fields_are_allocated_without_huge_page_advice_and_the_setting_is_
     shape) inside domains.small_pages, NumPy's huge-page advice off: sparse writes into calloc'd
     2 MiB pages stall on memory compaction. The block leaves NumPy's setting as it found it,
     also when it raises."""
-    from numpy._core import multiarray
     from popvol import domains
+    switch = domains.hugepage_switch()
+    if switch is None:
+        pytest.skip("this NumPy has no huge-page switch")
     states = []
     real_zeros = np.zeros
 
     def zeros(*a, **k):
-        now = multiarray._set_madvise_hugepage(False)
-        multiarray._set_madvise_hugepage(now)
+        now = switch(False)
+        switch(now)
         out = real_zeros(*a, **k)
         states.append((out.shape, now))
         return out
 
-    for before in (True, False):
-        multiarray._set_madvise_hugepage(before)
-        try:
+    original = switch(True)
+    try:
+        for before in (True, False):
+            switch(before)
             with domains.small_pages():
-                assert multiarray._set_madvise_hugepage(False) is False
-            assert multiarray._set_madvise_hugepage(before) is before
+                assert switch(False) is False
+            assert switch(before) is before
             with pytest.raises(RuntimeError), domains.small_pages():
                 raise RuntimeError
-            assert multiarray._set_madvise_hugepage(before) is before
-        finally:
-            multiarray._set_madvise_hugepage(True)
-    scene = scene_from_dict({"medium": {"resolution": 8}, "lights": [{"direction": [0, -1, 0]}],
-                             "method": {"resolution": 8}})
-    monkeypatch.setattr("popvol.pipeline.np.zeros", zeros)
-    popvol.solve(scene)
-    fields = [now for shape, now in states if len(shape) >= 5 and shape[-3:] == scene.medium.shape]
-    assert len(fields) == 5 and not any(fields)     # phi, phia, direct, phid, flux
-    assert multiarray._set_madvise_hugepage(True) is True
+            assert switch(before) is before
+        switch(True)
+        scene = scene_from_dict({"medium": {"resolution": 8}, "lights": [{"direction": [0, -1, 0]}],
+                                 "method": {"resolution": 8}})
+        monkeypatch.setattr("popvol.pipeline.np.zeros", zeros)
+        popvol.solve(scene)
+        fields = [now for shape, now in states if len(shape) >= 5 and shape[-3:] == scene.medium.shape]
+        assert len(fields) == 5 and not any(fields)     # phi, phia, direct, phid, flux
+        assert switch(True) is True
+    finally:
+        switch(original)

@@ -15,6 +15,7 @@ position of the domain's corner. Continuous index coordinates put cell centres a
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 from dataclasses import dataclass
 
@@ -223,13 +224,23 @@ def small_pages():
     huge pages and 0.20-0.31 s without. Dense arrays that are read at random (the domains, a point
     light's spherical block) keep them: there they save TLB misses. The previous setting is
     restored on leaving; without NumPy's switch the block runs unchanged."""
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:
+    switch = hugepage_switch()
+    if switch is None:
         yield
         return
-    before = _set_madvise_hugepage(False)
+    before = switch(False)
     try:
         yield
     finally:
-        _set_madvise_hugepage(before)
+        switch(before)
+
+
+def hugepage_switch():
+    """NumPy's ``_set_madvise_hugepage(enabled) -> previous`` (numpy._core in NumPy 2,
+    numpy.core in NumPy 1), or None where this NumPy has none."""
+    for module in ("numpy._core.multiarray", "numpy.core.multiarray"):
+        try:
+            return getattr(importlib.import_module(module), "_set_madvise_hugepage")
+        except (ImportError, AttributeError):
+            continue
+    return None
