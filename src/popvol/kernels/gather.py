@@ -75,6 +75,22 @@ def _bilinear(buf, stencil, k, ch):
             + fu * ((1 - fv) * buf[k, i1, j0, ch] + fv * buf[k, i1, j1, ch]))
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def mean_inverse_square(r, R):
+    """The mean of 1/|y - p|^2 over the ball of radius R whose centre is r from the point p
+    (a point light's 1/r^2 averaged over a cell of the same volume):
+      3 / (4 r R^3) (2 r R + (R^2 - r^2) ln((r + R) / |r - R|)),
+    which is 1/r^2 (1 + x^2/5 + 3 x^4/35 + ...), x = R/r, far from p (that series where
+    x < 1/4), 3 / (2 R^2) at r = R and 3 / R^2 at r = 0: finite, where 1/r^2 is not."""
+    if r > 4.0 * R:
+        x2 = (R / r) ** 2
+        return (1.0 + x2 / 5.0 + 3.0 * x2 * x2 / 35.0) / (r * r)
+    if r <= 1e-6 * R:
+        return 3.0 / (R * R)
+    log = math.log((r + R) / max(abs(r - R), 1e-300 * R))
+    return 3.0 / (4.0 * r * R ** 3) * (2.0 * r * R + (R * R - r * r) * log)
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     """Fill ``lobes`` float32 (M, K, 7) with the in-scattered light at the centre x of each cell
@@ -83,7 +99,8 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
       L_s(x, w) / sigma_s = sum_k weight_k f_hg(axis_k . w; g_k)
     (kernels/render.py, light_in_scattering with the camera ray d = -w): per light l and field
     channel c, the walk's unscattered light and its rest about the light's direction at x
-    (walk_lobe_weights; divided by r^2 for a point light) and the diffusion stage's light about
+    (walk_lobe_weights; for a point light, divided by r^2 averaged over the cell,
+    :func:`mean_inverse_square`, since the lobe stands for the whole cell) and the diffusion stage's light about
     its flux (diffuse_lobe_axis); a grey field's lobe carries the light's RGB power, channel c's
     only colour c. Evaluated once per cell, they serve every direction of the gather."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
@@ -91,6 +108,7 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     power = lights[POWER]
     n_ch = grid[PHI].shape[1]
     has_diffuse = grid[PHID].shape[0] > 0
+    cell_radius = (3.0 * voxel[0] * voxel[1] * voxel[2] / (4.0 * math.pi)) ** (1.0 / 3.0)
     for m in nb.prange(cells.shape[0]):
         lights_ = lights
         grid_ = grid
@@ -105,6 +123,8 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
                 p = lights_[POSITION][l]
                 r = math.sqrt(inv_r2)
                 axis = ((x[0] - p[0]) * r, (x[1] - p[1]) * r, (x[2] - p[2]) * r)
+                # the cell's mean of 1/r^2, not its centre's: finite with the light in the cell
+                inv_r2 = mean_inverse_square(1.0 / max(r, 1e-300), cell_radius)
             else:
                 axis = (lights_[DIRECTION][l, 0], lights_[DIRECTION][l, 1], lights_[DIRECTION][l, 2])
             for c in range(n_ch):
