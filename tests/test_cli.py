@@ -183,16 +183,16 @@ def test_reference_without_mitsuba_says_how_to_install(monkeypatch):
         import_mitsuba("cuda_rgb")
 
 
-def test_compare_against_a_black_reference_reports_flip_as_unavailable(tmp_path):
-    """FLIP takes its exposure range from the reference; a black one made flip-evaluator exit
-    the whole process. popvol renders at the reference's size and reports FLIP n/a."""
+def test_compare_against_a_black_reference_is_refused(tmp_path):
+    """A black reference has no scale for the metric (its epsilon is 0) and no exposure range
+    for FLIP (which once made flip-evaluator exit the whole process): refused in one line."""
     from popvol.io.images import write_exr
     ref = tmp_path / "ref.exr"
     write_exr(ref, np.zeros((10, 12, 3), np.float32))
     r = popvol("compare", "--reference", str(ref), "--resolution", "16", "--json", str(tmp_path / "c.json"))
-    assert r.returncode == 0, (r.stdout, r.stderr)
-    assert "FLIP n/a" in r.stdout
-    assert json.loads((tmp_path / "c.json").read_text())["flip"] is None
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"popvol: error: {ref}: the reference is black (every pixel 0); there is nothing to compare with"]
+    assert not (tmp_path / "c.json").exists()
 
 
 # -- hostile values: always one PopvolError line, never a TypeError ---------------------------

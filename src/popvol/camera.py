@@ -36,7 +36,7 @@ class Camera:
         src = self.source
         self.origin = check.vector(self.origin, "camera.origin", src)
         self.target = check.vector(self.target, "camera.target", src)
-        self.up = check.vector(self.up, "camera.up", src, nonzero=True)
+        self.up = _unit(check.vector(self.up, "camera.up", src, nonzero=True))   # a direction: kept unit
         self.fov = check.number(self.fov, "camera.fov", src, 0.0, 180.0, open_interval=True)
         self.width = check.integer(self.width, "camera.width", src, 1, math.inf)
         self.height = check.integer(self.height, "camera.height", src, 1, math.inf)
@@ -49,24 +49,20 @@ class Camera:
                                   "(world units) on every axis")
         with np.errstate(over="ignore", invalid="ignore"):
             view = self.target - self.origin
-            dist, up = np.linalg.norm(view), np.linalg.norm(self.up)
-            across = np.linalg.norm(np.cross(view / dist, self.up / up)) if 0 < dist < np.inf else 0.0
-        if not np.isfinite(dist) or not np.isfinite(up):
-            raise PopvolError(f"{self.source}: camera.target - camera.origin (or camera.up) overflows; "
+        if not np.all(np.isfinite(view)):
+            raise PopvolError(f"{self.source}: camera.target - camera.origin overflows; "
                               "keep coordinates well below 1e308")
-        if dist == 0:
+        if not view.any():
             raise PopvolError(f"{self.source}: camera.target equals camera.origin; they must differ")
-        if not across >= 1e-9:
+        if not np.linalg.norm(np.cross(_unit(view), self.up)) >= 1e-9:
             raise PopvolError(f"{self.source}: camera.up is parallel to the view direction; choose another up vector")
         if self.width * self.height > MAX_PIXELS:
             raise PopvolError(f"{self.source}: camera {self.width}x{self.height} has more than {MAX_PIXELS} pixels")
 
     def basis(self) -> np.ndarray:
         """float64 (3, 3): rows forward, right, up (world space, unit, right-handed view)."""
-        fwd = self.target - self.origin
-        fwd /= np.linalg.norm(fwd)
-        right = np.cross(fwd, self.up)
-        right /= np.linalg.norm(right)
+        fwd = _unit(self.target - self.origin)
+        right = _unit(np.cross(fwd, self.up))
         up = np.cross(right, fwd)
         return np.stack([fwd, right, up])
 
@@ -88,3 +84,10 @@ class Camera:
         sy = (1 - 2 * py / self.height) * tan_half
         d = fwd + sx[..., None] * right + sy[..., None] * up
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    """v / |v|, scaled by its largest component first so that neither a tiny (1e-320) nor a
+    huge (1e308) vector under- or overflows; v must not be 0."""
+    v = v / np.abs(v).max()
+    return v / np.linalg.norm(v)

@@ -270,7 +270,7 @@ def bench(json_out, repeat, data, quick):
 def hg_figure(output):
     """Plot f_hg and 2 pi F_hg for g = 0, 0.5, 0.9 (the supplement's Fig. 1)."""
     from .hg import plot_supplement_figure
-    _check_writable(output, "-o/--output")
+    _check_outputs({"-o/--output": (output, (".png", ".pdf", ".svg"))}, [])
     plot_supplement_figure(output)
     click.echo(output)
 
@@ -291,8 +291,11 @@ def reference(scene, output, spp, passes, variant, max_depth, width, height, new
     from .scene import load_scene
     if Path(output).suffix.lower() != ".exr":
         raise PopvolError(f"-o/--output {output}: a reference is stored as .exr")
-    _check_writable(output, "-o/--output")
+    outputs = {"-o/--output": (output, (".exr",)), "its metadata": (output + ".json", (".json",)),
+               "its per-pixel sums": (output + ".npz", (".npz",))}
+    _check_outputs(outputs, [scene] if scene else [])
     sc = load_scene(scene, width=width, height=height)
+    _check_outputs(outputs, sc.files)
     with _progress() as bar:
         task = bar.add_task("Mitsuba passes", total=passes, info=f"{spp} spp, {variant}")
         ref = render_reference(sc, output, spp, variant, passes, max_depth, resume=not new,
@@ -330,11 +333,13 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     from .io.files import write_text_atomically
     outputs = {"--json": (json_out, (".json",)), "--figure": (figure, (".png",)),
                "-o/--output": (output, (".png", ".exr"))}
-    _check_outputs(outputs, [p for p in (scene, ref_path) if p])
+    # the reference and its sidecars (popvol reference's REF.exr.json and REF.exr.npz) are inputs
+    references = [ref_path, ref_path + ".json", ref_path + ".npz"]
+    _check_outputs(outputs, [p for p in [scene, *references] if p])
     ref = load_reference(ref_path)
     h, w = ref.image.shape[:2]
     sc = load_scene(scene, width=w, height=h, **_method_overrides("compare", knobs))
-    _check_outputs(outputs, sc.files)
+    _check_outputs(outputs, [*sc.files, *references])
     t0 = time.perf_counter()
     solution = solve(sc)
     img = render_image(sc, solution)
@@ -470,6 +475,10 @@ def main(argv=None) -> None:
     except click.exceptions.Abort:
         click.echo("popvol: interrupted", err=True)
         sys.exit(130)
+    except OSError as e:                  # a file that cannot be written or read (full disk, quota)
+        where = f"{e.filename}: " if e.filename else ""
+        click.echo(f"popvol: error: {where}{e.strerror or e}", err=True)
+        sys.exit(2)
     except KeyboardInterrupt:
         click.echo("popvol: interrupted", err=True)
         sys.exit(130)

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.polynomial import legendre as npleg
 
 from .errors import PopvolError
+from .io.files import write_atomically
 
 COS_QUARTER_PI = np.sqrt(0.5)   # the front/side/back boundaries of supplement Eq. 7
 _SMALL_G = 0.01                 # below this |g| the first moment uses its Legendre series
@@ -185,5 +186,7 @@ def plot_supplement_figure(path) -> None:
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    try:
+        write_atomically(path, fig.savefig)      # the temporary file keeps the suffix: the format
+    finally:
+        plt.close(fig)

@@ -42,6 +42,7 @@ import numpy as np
 
 from .envmap import LUMINANCE
 from .errors import PopvolError
+from .io.files import write_atomically
 
 #: eps of relMSE = EPS_FRACTION * (mean reference luminance on the mask)^2
 EPS_FRACTION = 0.01
@@ -382,5 +383,7 @@ def comparison_figure(path, img, ref, exposure="auto", title: str = "", mask=Non
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    try:
+        write_atomically(path, fig.savefig)      # the temporary file keeps the suffix: the format
+    finally:
+        plt.close(fig)

@@ -43,9 +43,11 @@ from pathlib import Path
 import numpy as np
 
 from .errors import PopvolError
+from .io.files import write_atomically, write_text_atomically
 from .scene import Scene
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
+MAX_SPP = 2 ** 31 - 1      # Mitsuba takes samples per pixel, and path lengths, as 32-bit integers
 
 
 def import_mitsuba(variant: str = "scalar_rgb"):
@@ -188,11 +190,19 @@ def _scene_name(source: str, output: Path) -> str:
 
 
 def load_reference(path) -> Reference:
+    """The reference at ``path`` (an EXR of radiance: finite and >= 0, not black) with what its
+    sidecars say (popvol reference's REF.exr.json and REF.exr.npz, each checked)."""
     from .io.images import read_exr
     path = Path(path)
     if not path.is_file():
         raise PopvolError(f"{path}: reference image not found")
     image = read_exr(path)
+    bad = int((~np.isfinite(image)).sum()) + int((image < 0).sum())
+    if bad:
+        raise PopvolError(f"{path}: {bad} pixel values are not finite or are negative; a reference holds "
+                          "radiance, finite and >= 0")
+    if not image.any():
+        raise PopvolError(f"{path}: the reference is black (every pixel 0); there is nothing to compare with")
     meta_path, sums_path = _sidecars(path)
     meta, variance, spp, passes = {}, None, 0, 1
     if meta_path.is_file():
@@ -200,13 +210,34 @@ def load_reference(path) -> Reference:
             meta = json.loads(meta_path.read_text())
         except (OSError, ValueError) as e:
             raise PopvolError(f"{meta_path}: cannot read reference metadata ({e})") from None
-        spp, passes = int(meta.get("spp", 0)), int(meta.get("passes", 1))
+        if not isinstance(meta, dict):
+            raise PopvolError(f"{meta_path}: reference metadata must be a JSON object (popvol reference writes one)")
+        spp = _meta_number(meta, "spp", 0, meta_path, int, 1)
+        passes = _meta_number(meta, "passes", 1, meta_path, int, 1)
+        _meta_number(meta, "seconds", 0.0, meta_path, float, 0.0)
     if sums_path.is_file() and passes >= 2:
-        with np.load(sums_path) as z:
-            s, s2 = z["sum"], z["sumsq"]
+        try:
+            with np.load(sums_path, allow_pickle=False) as z:
+                s, s2 = np.asarray(z["sum"], np.float64), np.asarray(z["sumsq"], np.float64)
+        except (OSError, ValueError, KeyError, EOFError) as e:
+            raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums (keys sum and sumsq; "
+                              f"{e})") from None
+        if s.shape != image.shape or s2.shape != image.shape:
+            raise PopvolError(f"{sums_path}: sums of shape {s.shape} and {s2.shape} do not match the image "
+                              f"{path.name} ({image.shape})")
         mean = s / passes
         variance = np.maximum(s2 / passes - mean ** 2, 0.0) / (passes - 1)
     return Reference(image, spp, passes, variance, meta)
+
+
+def _meta_number(meta: dict, key: str, default, meta_path: Path, kind, minimum):
+    """meta[key] (``default`` where absent) as ``kind``, finite and >= ``minimum``."""
+    value = meta.get(key, default)
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and (kind is float or float(value).is_integer())
+    if not ok or not np.isfinite(value) or (key in meta and value < minimum):
+        raise PopvolError(f"{meta_path}: {key} = {value!r} must be {'an integer' if kind is int else 'a number'} "
+                          f">= {minimum}")
+    return kind(value)
 
 
 def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb", passes: int = 4,
@@ -218,8 +249,11 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
     """
     from .io.images import write_exr
     output = Path(output)
-    if spp < 1 or passes < 1:
-        raise PopvolError(f"--spp = {spp} and --passes = {passes} must be >= 1")
+    if not (1 <= spp <= MAX_SPP and 1 <= passes <= MAX_SPP):
+        raise PopvolError(f"--spp = {spp} and --passes = {passes} must be in [1, {MAX_SPP}]")
+    if max_depth != -1 and not 2 <= max_depth <= MAX_SPP:
+        raise PopvolError(f"--max-depth = {max_depth} must be -1 (no limit) or in [2, {MAX_SPP}] "
+                          "(a path of length 1 sees no scattering)")
     passes = min(passes, spp)
     meta_path, sums_path = _sidecars(output)
     digest = scene_digest(scene)
@@ -230,18 +264,25 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
         if not (meta_path.is_file() and sums_path.is_file()):
             raise PopvolError(f"{output}: exists without its {meta_path.name} / {sums_path.name}; "
                               "remove it or choose another output to start a new reference")
-        meta = json.loads(meta_path.read_text())
+        prev = load_reference(output)             # its sidecars checked
+        meta = prev.meta
         if meta.get("scene_digest") != digest:
             raise PopvolError(f"{output}: was rendered for another scene ({meta.get('scene')}); "
                               "choose another output")
-        with np.load(sums_path) as z:
-            s, s2 = z["sum"].copy(), z["sumsq"].copy()
-        done_passes, done_spp = int(meta["passes"]), int(meta["spp"])
+        try:
+            with np.load(sums_path, allow_pickle=False) as z:
+                s, s2 = z["sum"].astype(np.float64), z["sumsq"].astype(np.float64)
+        except (OSError, ValueError, KeyError, EOFError) as e:
+            raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums ({e})") from None
+        if s.shape != (scene.camera.height, scene.camera.width, 3):
+            raise PopvolError(f"{output}: is {s.shape[1]}x{s.shape[0]}, the scene {scene.camera.width}x"
+                              f"{scene.camera.height}; resume at the same size or choose another output")
+        done_passes, done_spp = prev.passes, prev.spp
         seconds = float(meta.get("seconds", 0.0))
-        if int(meta.get("max_depth", 1024)) != max_depth:
+        if _meta_number(meta, "max_depth", 1024, meta_path, int, -1) != max_depth:
             raise PopvolError(f"{output}: was rendered with --max-depth {meta.get('max_depth', 1024)}; resume "
                               f"with the same (now {max_depth}) or choose another output")
-        if int(meta.get("spp_per_pass", 0)) != spp // passes:
+        if _meta_number(meta, "spp_per_pass", 0, meta_path, int, 1) != spp // passes:
             raise PopvolError(f"{output}: has {meta.get('spp_per_pass')} samples per pass; resume "
                               f"with --spp / --passes giving the same (now {spp // passes})")
     mi = import_mitsuba(variant)
@@ -257,16 +298,17 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
             progress(p + 1, passes)
     n = done_passes + passes
     mean = s / n
-    # Mitsuba's LLVM film leaves rounding residue like -1e-17 in empty pixels: zero it, but let
-    # anything larger (a real negative radiance) reach write_exr's check
-    mean = np.where((mean < 0) & (mean > -1e-9 * max(float(mean.max()), 1e-30)), 0.0, mean)
+    # Mitsuba's films leave float32 rounding residue (-1e-17 in empty pixels, -5e-9 beside 0.4)
+    # in the sums: zero it, but let anything larger than float32 rounding of the brightest
+    # pixel (a real negative radiance) reach write_exr's check
+    mean = np.where((mean < 0) & (mean > -1e-6 * max(float(mean.max()), 1e-30)), 0.0, mean)
     mean = mean.astype(np.float32)
     write_exr(output, mean)
-    np.savez(sums_path, sum=s, sumsq=s2)
+    write_atomically(sums_path, lambda tmp: np.savez(tmp, sum=s, sumsq=s2))
     meta = {"scene": _scene_name(scene.source, output), "scene_digest": digest,
             "spp": done_spp + per_pass * passes, "passes": n, "spp_per_pass": per_pass,
             "variant": variant, "max_depth": max_depth, "integrator": "volpath",
             "mitsuba": mi.__version__, "seconds": seconds,
             "width": scene.camera.width, "height": scene.camera.height}
-    meta_path.write_text(json.dumps(meta, indent=2))
+    write_text_atomically(meta_path, json.dumps(meta, indent=2))
     return load_reference(output)

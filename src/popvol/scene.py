@@ -246,7 +246,8 @@ def _optics_grid(spec: dict, key: str, m: dict, src: str, base: Path) -> np.ndar
         raise PopvolError(f"{src}: medium.{key} is a grid table but names no file (and the medium has none)")
     name = f"medium.{key}.file" if "file" in spec else "medium.file"
     path = _path(spec.get("file", m.get("file")), name, src, base)
-    grid = _text(spec.get("grid", key), f"medium.{key}.grid", src)
+    # a .vol file holds one unnamed grid; the other formats name theirs (by default the key's name)
+    grid = _text(spec.get("grid", None if path.suffix.lower() == ".vol" else key), f"medium.{key}.grid", src)
     return read_volume(path, grid, signed=(key == "g")).density
 
 

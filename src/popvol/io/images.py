@@ -238,6 +238,8 @@ def read_exr(path) -> np.ndarray:
             ch = f.channels()
             if "RGB" in ch:
                 rgb = ch["RGB"].pixels
+            elif "RGBA" in ch:              # the binding groups R, G, B and A into one array
+                rgb = ch["RGBA"].pixels[..., :3]
             else:
                 rgb = np.stack([ch[c].pixels for c in "RGB"], axis=-1)
     except KeyError as e:

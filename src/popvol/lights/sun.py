@@ -44,12 +44,8 @@ class DirectionalLight(Light):
 
     def __post_init__(self):
         d = check.vector(self.direction, *self.field("direction"), nonzero=True)
-        with np.errstate(over="ignore"):              # e.g. [1e308, 1e308, 0]: rescaled below
-            norm = np.linalg.norm(d)
-        if not np.isfinite(norm):
-            d = d / np.abs(d).max()
-            norm = np.linalg.norm(d)
-        self.direction = d / norm
+        d = d / np.abs(d).max()             # so that neither [1e308, 1e308, 0] nor [1e-320, 0, 0] over- or underflows
+        self.direction = d / np.linalg.norm(d)
         self.irradiance = check.power(self.irradiance, *self.field("irradiance"))
         self.a0 = check.number(self.a0, *self.field("a0"), 0.0, 1.0)
 
