@@ -582,3 +582,8 @@ def test_a_write_that_fails_is_one_line(tmp_path, capsys, monkeypatch):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
     monkeypatch.setattr(popvol.hg, "plot_supplement_figure", full)
     cli_refuses(capsys, ["hg-figure", "-o", tmp_path / "fig.png"], "fig.png", "No space left")
+
+
+def test_an_empty_output_name_is_refused_before_any_work(tmp_path, capsys, no_solve):
+    scene = toml_scene(tmp_path, TINY_TOML)
+    cli_refuses(capsys, ["render", scene, "-o", ""], "-o/--output", ".png")

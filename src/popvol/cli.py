@@ -452,7 +452,7 @@ def _check_outputs(outputs: dict, inputs) -> None:
     suffix, a folder to go in, and is neither an input file nor another output."""
     seen = {Path(p).resolve(): "the scene's input file " + str(p) for p in inputs}
     for option, (path, suffixes) in outputs.items():
-        if not path:
+        if path is None:                  # not given ("" is given, and has no suffix)
             continue
         if Path(path).suffix.lower() not in suffixes:
             raise PopvolError(f"{option} {path}: must end in {' or '.join(suffixes)}")
