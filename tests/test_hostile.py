@@ -587,3 +587,16 @@ def test_a_write_that_fails_is_one_line(tmp_path, capsys, monkeypatch):
 def test_an_empty_output_name_is_refused_before_any_work(tmp_path, capsys, no_solve):
     scene = toml_scene(tmp_path, TINY_TOML)
     cli_refuses(capsys, ["render", scene, "-o", ""], "-o/--output", ".png")
+
+
+def test_a_byte_order_mark_before_the_toml_is_read_past(tmp_path):
+    scene = tmp_path / "bom.toml"
+    scene.write_bytes(b"\xef\xbb\xbf" + TINY_TOML.encode())
+    assert load_scene(scene).camera.width == 16
+
+
+def test_bytes_that_are_not_an_npz_are_not_called_a_pickle(tmp_path):
+    path = tmp_path / "rand.npz"
+    path.write_bytes(np.random.default_rng(0).bytes(300))
+    msg = refused(file_scene(path), "rand.npz", "not an .npz archive")
+    assert "pickle" not in msg

@@ -73,7 +73,7 @@ def read_scene_file(path) -> dict:
             raise PopvolError(f"{p}: scene file is {size / 2**20:.1f} MiB; at most "
                               f"{MAX_SCENE_FILE_BYTES // 2**20} MiB of TOML is read (a volume goes in its own "
                               "file, named by [medium] file)")
-        return tomllib.loads(p.read_text())
+        return tomllib.loads(p.read_text(encoding="utf-8-sig"))    # a byte-order mark (Windows editors) is not TOML
     except (OSError, UnicodeDecodeError) as e:
         raise PopvolError(f"{p}: cannot read scene file ({e})") from None
     except tomllib.TOMLDecodeError as e:

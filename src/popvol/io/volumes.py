@@ -81,6 +81,8 @@ def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
     except PopvolError:
         raise
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as e:
+        if "pickled" in str(e):             # NumPy's word for anything that is neither zip nor .npy
+            raise PopvolError(f"{path}: is not an .npz archive (NumPy's zip of arrays, numpy.savez)") from None
         raise PopvolError(f"{path}: cannot read as .npz ({e})") from None
     except (TypeError, AttributeError):     # np.load gave a plain array: .npy content
         raise PopvolError(f"{path}: holds a single .npy array, not an .npz archive; save it with "
