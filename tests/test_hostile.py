@@ -600,3 +600,12 @@ def test_bytes_that_are_not_an_npz_are_not_called_a_pickle(tmp_path):
     path.write_bytes(np.random.default_rng(0).bytes(300))
     msg = refused(file_scene(path), "rand.npz", "not an .npz archive")
     assert "pickle" not in msg
+
+
+@pytest.mark.parametrize("args, words", [
+    (["render", "--width", "abc"], ["--width", "abc"]),
+    (["bench", "--repeat", "0"], ["--repeat"]),
+    (["nosuch"], ["nosuch"]),
+])
+def test_option_errors_are_one_line(capsys, args, words):
+    cli_refuses(capsys, args, *words)

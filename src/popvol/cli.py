@@ -469,8 +469,11 @@ def main(argv=None) -> None:
     except PopvolError as e:
         click.echo(f"popvol: error: {e}", err=True)
         sys.exit(2)
-    except click.ClickException as e:
-        e.show()
+    except click.ClickException as e:     # a bad option or argument: one line, as every other error
+        ctx = getattr(e, "ctx", None)
+        where = f"{ctx.command_path}: " if ctx is not None else ""
+        hint = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+        click.echo(f"popvol: error: {where}{e.format_message()}{hint}", err=True)
         sys.exit(e.exit_code)
     except click.exceptions.Abort:
         click.echo("popvol: interrupted", err=True)
