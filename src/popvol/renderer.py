@@ -114,7 +114,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     grid_lit = int((~solution.is_point).sum()) + (len(solution.is_point) if solution.phid.shape[0] > 0 else 0)
     if combined is None:
         samples = cam.width * cam.height * m.spp * grid_lit
-        combined = samples * COMBINED_VOXELS_PER_SAMPLE >= int(seen.sum())
+        combined = samples * COMBINED_VOXELS_PER_SAMPLE >= med.derived("seen_count", lambda _: int(seen.sum()))
     if gathering:
         source = gathered                 # every sample reads the gathered light from the grid
     elif combined and grid_lit > 0:

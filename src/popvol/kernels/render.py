@@ -73,6 +73,7 @@ MAX_SUBSTEPS = 256      # ... into at most this many parts
 COARSE_DEPTH = 0.5
 NEAR_POINT_LIGHT = 0.125
 G_MAX = 0.9999  # |g A| at most this in f_hg
+TINY = 1e-30    # a floor for divisors that may be 0 (where the lobe's weight is 0)
 # Positions in the bundles, for the helpers of the innermost loops (per sample, light and
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
 # names there, Numba took and dropped a reference to its arrays (atomic counts) at every sample.
@@ -266,14 +267,14 @@ def walk_lobe_weights(p, pa, pdir, g):
 @nb.njit(inline="always", fastmath=True, cache=True)
 def walk_lobes(p, pa, pdir, mu, g):
     """The walk's light scattered toward the camera, per unit power: phi_dir f_hg(mu; g) +
-    (phi - phi_dir) f_hg(mu; g A_rest) (:func:`walk_lobe_weights`), mu = d_l . (-d)."""
-    w_dir, g_dir, w_rest, g_rest = walk_lobe_weights(p, pa, pdir, g)
-    val = 0.0
-    if w_dir > 0.0:
-        val = w_dir * f_hg(mu, g_dir)
-    if w_rest > 0.0:
-        val += w_rest * f_hg(mu, g_rest)
-    return val
+    (phi - phi_dir) f_hg(mu; g A_rest) (:func:`walk_lobe_weights`: the same lobes), mu =
+    d_l . (-d). Without branches, so that loops over voxels overlap in the pipeline: an empty
+    lobe has weight 0 (and its g, clamped, does not matter)."""
+    p = max(p, 0.0)
+    w_dir = min(max(pdir, 0.0), p)
+    w_rest = p - w_dir
+    g_rest = _clamp_g(g * ((pa - w_dir) / max(w_rest, TINY)))
+    return w_dir * f_hg(mu, _clamp_g(g)) + w_rest * f_hg(mu, g_rest)
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -298,13 +299,23 @@ def diffuse_lobe_axis(phid, flux, corners, g, cap):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
+def lobe_toward(pd, jx, jy, jz, d0, d1, d2, g, cap):
+    """The diffusion stage's light of fluence pd and flux J = (jx, jy, jz) scattered along the
+    camera ray d, per unit power: phi_d f_hg(-d . J/|J|; g A_d), A_d = min(|J| / phi_d, cap)
+    (:func:`diffuse_lobe_axis`: the same lobe); phi_d / 4 pi where J = 0, 0 where phi_d <= 0.
+    Without branches (see :func:`walk_lobes`)."""
+    jn = math.sqrt(jx * jx + jy * jy + jz * jz)
+    mu = -(jx * d0 + jy * d1 + jz * d2) / max(jn, TINY)
+    g_d = _clamp_g(g * min(jn / max(pd, TINY), cap))
+    return max(pd, 0.0) * f_hg(mu, g_d)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
 def diffuse_lobe(phid, flux, corners, d, g, cap):
-    """The diffusion stage's light scattered along the camera ray d, per unit power:
-    phi_d f_hg(-d . J/|J|; g A_d) (:func:`diffuse_lobe_axis`); phi_d / 4 pi where J = 0."""
-    pd, ax, ay, az, g_d = diffuse_lobe_axis(phid, flux, corners, g, cap)
-    if pd <= 0.0:
-        return 0.0
-    return pd * f_hg(-(ax * d[0] + ay * d[1] + az * d[2]), g_d)
+    """:func:`lobe_toward` of phid (nx, ny, nz) and flux (3, nx, ny, nz) of one light and
+    channel on the medium's grid, trilinear on the stencil ``corners``."""
+    return lobe_toward(interpolate(phid, corners), interpolate(flux[0], corners), interpolate(flux[1], corners),
+                       interpolate(flux[2], corners), d[0], d[1], d[2], g, cap)
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
