@@ -103,7 +103,7 @@ def render_error(tmp_path, scene_text, words):
     ('albedo = [0.9, 0.8]\n', ["medium.albedo", "1 or 3 finite numbers in [0, 1]"]),
     ('scale = [1, 2, -3]\n', ["medium.scale", ">= 0"]),
     ('albedo = {grid = "wrong_shape"}\n', ["medium.albedo grid", "(3, 3, 3)", "(4, 4, 4)"]),
-    ('albedo = {grid = "too_big"}\n', ["medium.albedo grid", "outside [0, 1]", "(0, 0, 0)"]),
+    ('albedo = {grid = "too_big"}\n', ["medium.albedo grid", "outside [0, 1]", "voxel (0, 0, 0): 1.5)"]),
     ('g = {grid = "g_one"}\n', ["medium.g grid", "outside (-1, 1)"]),
     ('albedo = {grid = "nope"}\n', ["no array named 'nope'", "density"]),
     ('albedo = {file = "x.npz", grid = "a", colour = 1}\n', ["unknown key medium.albedo.colour"]),

@@ -251,5 +251,5 @@ def _grid(value, shape, name: str, source: str, lo: float, hi: float, open_inter
         at = tuple(int(v) for v in np.argwhere(~ok)[0])
         rng = f"({lo:g}, {hi:g})" if open_interval else f"[{lo:g}, {hi:g}]"
         raise PopvolError(f"{source}: {name} grid has {int((~ok).sum())} values outside {rng} "
-                          f"(first at {at}: {a[at]!r})")
+                          f"(first at voxel {at}: {float(a[at]):g})")
     return a
