@@ -382,3 +382,83 @@ def test_scene_from_dict_builds_frames():
     s = scene_from_dict(d, frame=3)
     assert s.frame == 3
     np.testing.assert_array_equal(s.medium.density, demo_medium(16, time=3 / 24).density)
+
+
+# ---------------------------------------------------------------------------------------------
+# Inputs found mishandled by a run of hostile cases
+# ---------------------------------------------------------------------------------------------
+
+def test_frame_outputs_never_overwrite_the_scenes_files(tmp_path):
+    """Every frame's image and EXR are checked against every file the frames read (the scene
+    file, each frame's medium file, maps), and against each other, before anything is rendered
+    (the middle frame used to be metered and written first)."""
+    from popvol.io.images import write_exr
+    write_exr(tmp_path / "env_0002.exr", np.full((8, 16, 3), 0.5, np.float32))
+    env = TINY.replace("[[lights]]\ndirection = [0.3, -1, 0]\n",
+                       '[[lights]]\ntype = "envmap"\nfile = "env_0002.exr"\nlights = 2\n')
+    p = write(tmp_path, env + "[sequence]\nframes = '1-3'\n")
+    before = (tmp_path / "env_0002.exr").read_bytes()
+    r = popvol_cli("render", p, "-o", tmp_path / "x_####.png", "--exr", tmp_path / "env_####.exr")
+    assert r.returncode == 2 and "env_0002.exr (frame 2) is an input file of frame" in r.stderr, r.stderr
+    assert (tmp_path / "env_0002.exr").read_bytes() == before and not list(tmp_path.glob("x_*"))
+    shot = write(tmp_path, TINY + "[sequence]\nframes = '1-3'\n", name="shot_0002.png")
+    r = popvol_cli("render", shot, "-o", tmp_path / "shot_####.png")
+    assert r.returncode == 2 and "is the scene file" in r.stderr, r.stderr
+    vols = tmp_path / "v"
+    vols.mkdir()
+    npz_frames(vols, [1, 2])
+    seq = write(vols, FILE_SEQ.format(files="1-2", mode="clip"))
+    with pytest.raises(PopvolError, match="vol_001.npz .frame 1. is an input file of frame 1"):
+        sq.check_frame_outputs(sq.load_sequence(seq), str(seq), str(vols / "vol_###.png"), str(vols / "vol_###.npz"),
+                               [1, 2])
+    r = popvol_cli("render", p, "--frames", "0,10", "-o", tmp_path / "c_1#.exr", "--exr", tmp_path / "c_#.exr")
+    assert r.returncode == 2 and "c_10.exr (frame 10) is also -o/--output of frame 0" in r.stderr, r.stderr
+
+
+def test_damaged_or_edited_frames_are_rendered_again(tmp_path):
+    p = write(tmp_path, TINY + "[sequence]\nframes = '1-2'\n")
+    out = str(tmp_path / "f_#.png")
+    opts = {"method": {"exposure": 0.0}}
+    sq.render_run(str(p), [1, 2], out, opts)
+    (tmp_path / "f_1.png").write_bytes(b"")                     # emptied
+    rec = json.loads(sq.record_path(tmp_path / "f_2.png").read_text())
+    rec["exposure"] = "abc"                                     # an edited record
+    sq.record_path(tmp_path / "f_2.png").write_text(json.dumps(rec))
+    again = sq.render_run(str(p), [1, 2], out, opts)
+    assert [r["skipped"] for r in again] == [False, False]
+    assert [r["skipped"] for r in sq.render_run(str(p), [1, 2], out, opts)] == [True, True]
+
+
+def test_scheduler_addresses_that_are_not_one_or_do_not_answer(tmp_path):
+    """A malformed address is refused at once; a port where something listens but never
+    answers (no Dask scheduler) is given up after the timeout, in one line, not hung."""
+    import socket
+    import time
+    pytest.importorskip("distributed")
+    from popvol.distributed import connect
+    for address in ("garbage", "http://example", "inproc://nothing", "tcp://host:99999"):
+        with pytest.raises(PopvolError, match="give tcp://HOST:PORT"):
+            connect(address, timeout=1)
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(5)
+        t0 = time.perf_counter()
+        with pytest.raises(PopvolError, match="no answer|Timed out"):
+            connect(f"tcp://127.0.0.1:{silent.getsockname()[1]}", timeout=1)
+        assert time.perf_counter() - t0 < 30
+
+
+def test_more_local_workers_than_cores_is_refused(tmp_path):
+    import os
+    p = write(tmp_path, TINY + "[sequence]\nframes = '1-2'\n")
+    r = popvol_cli("render", p, "-o", tmp_path / "f_#.png", "--workers", str((os.cpu_count() or 1) + 1))
+    assert r.returncode == 2 and "cores" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+
+
+def test_the_exposure_is_metered_on_a_frame_that_shows_the_medium(tmp_path):
+    """Frames 0-9 of files 0-2 with mode clip: the middle frame (5) is hidden, so the exposure
+    is the auto exposure of the middle one of the frames that show the medium (1)."""
+    npz_frames(tmp_path, [1, 2, 3])
+    p = write(tmp_path, FILE_SEQ.format(files="1-3", mode="clip"))
+    stops, mid, res = sq._meter(sq.load_sequence(p), list(range(0, 10)), str(tmp_path / "f_#.png"), None, {})
+    assert mid == 2 and res["hidden"] is False and stops != 0.0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -156,8 +157,12 @@ def _render_frames(seq, scene, output, exr, width, height, stats, frames, video,
         sq.import_video_writer()                     # before any work: a missing extra is one line
     if workers is not None and scheduler is not None:
         raise PopvolError("--workers and --scheduler exclude each other: a local cluster or a running one")
-    if workers is not None and not 1 <= workers <= 1024:
-        raise PopvolError(f"--workers {workers} must be in [1, 1024]")
+    cores = os.cpu_count() or 1
+    if workers is not None and not 1 <= workers <= cores:
+        raise PopvolError(f"--workers {workers} must be in [1, {cores}]: this machine's cores (more local workers "
+                          "than cores only compete for them; --scheduler uses a cluster of other machines)")
+    if workers is not None:
+        workers = min(workers, len(frame_list))       # a worker per run of frames, at most one run a frame
     client = None
     if workers is not None or scheduler is not None:
         try:

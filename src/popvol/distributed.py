@@ -132,15 +132,32 @@ def _environ(**values: str):
 
 def connect(address: str, timeout: float = CONNECT_TIMEOUT_S):
     """A ``distributed.Client`` connected to the scheduler at ``address``
-    (e.g. ``tcp://HOST:8786``); a one-line PopvolError if it cannot be reached in ``timeout`` s."""
+    (``tcp://HOST:PORT`` or ``tls://HOST:PORT``); a one-line PopvolError if the address is not
+    one, or if no scheduler answers within ``timeout`` s (also where something listens but
+    never answers: the attempt runs in a thread that is given up on)."""
     distributed = _distributed()
     if not isinstance(address, str) or not address.strip():
         raise PopvolError(f"scheduler address {address!r} is empty: give e.g. tcp://HOST:8786")
-    try:
-        return distributed.Client(address.strip(), timeout=timeout, set_as_default=False)
-    except Exception as e:  # noqa: BLE001
-        raise PopvolError(f"cannot reach the Dask scheduler at {address.strip()} within "
-                          f"{timeout:g} s: {_one_line(e)}") from None
+    address = address.strip()
+    m = re.fullmatch(r"(tcp|tls)://(\[[0-9A-Fa-f:.]+\]|[^\s:/\[\]]+):(\d{1,5})", address)
+    if m is None or not 0 < int(m.group(3)) < 65536:
+        raise PopvolError(f"scheduler address {address!r}: give tcp://HOST:PORT (or tls://HOST:PORT), "
+                          "e.g. tcp://127.0.0.1:8786")
+    result = {}
+
+    def attempt():
+        try:
+            result["client"] = distributed.Client(address, timeout=timeout, set_as_default=False)
+        except Exception as e:  # noqa: BLE001
+            result["error"] = e
+
+    thread = threading.Thread(target=attempt, name="popvol-connect", daemon=True)
+    thread.start()
+    thread.join(timeout + 5.0)
+    if "client" in result:
+        return result["client"]
+    reason = _one_line(result["error"]) if "error" in result else "no answer (is a Dask scheduler listening there?)"
+    raise PopvolError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s: {reason}")
 
 
 def _one_line(e: BaseException) -> str:

@@ -538,6 +538,12 @@ def _done(image, exr, digest: str) -> dict | None:
         return None
     if exr is not None and (rec.get("exr") != str(Path(exr).resolve()) or not Path(exr).is_file()):
         return None
+    if rec.get("bytes") != _sizes(image, exr):
+        return None
+    exposure, seconds = rec.get("exposure"), rec.get("seconds")
+    if not (exposure is None or (check._is_real(exposure) and math.isfinite(float(exposure)))) \
+            or not isinstance(seconds, dict):
+        return None                          # an edited record: the frame is rendered again
     return rec
 
 
@@ -596,6 +602,31 @@ def check_patterns(output, exr, frames, src: str = "render") -> None:
             raise PopvolError(f"{opt} {pat}: folder {folder} does not exist")
     if exr is not None and Path(str(exr)).resolve() == Path(str(output)).resolve():
         raise PopvolError(f"--exr {exr} is also -o/--output; give them different names")
+
+
+def check_frame_outputs(seq: Sequence, scene_path, output, exr, frames) -> None:
+    """Before any frame is rendered: no frame's image (``output``) or EXR (``exr``) is one of
+    the files the scene reads in any of ``frames`` (the scene file, each frame's medium file,
+    maps and grids), and no two frames write the same file (e.g. c_1#.exr of frame 0 and c_#.exr
+    of frame 10)."""
+    from .scene import _files
+    inputs = {Path(scene_path).resolve(): "the scene file"} if scene_path else {}
+    for f in frames:
+        for p in _files(seq.frame_data(f)[0], Path(seq.base_dir)):
+            inputs.setdefault(p, f"an input file of frame {f}")
+    written: dict[Path, str] = {}
+    for f in frames:
+        image, exr_path = _frame_paths(output, exr, f)
+        for opt, path in (("-o/--output", image), ("--exr", exr_path)):
+            if path is None:
+                continue
+            p = path.resolve()
+            if p in inputs:
+                raise PopvolError(f"{opt} {path} (frame {f}) is {inputs[p]}; writing it would overwrite it")
+            if p in written:
+                raise PopvolError(f"{opt} {path} (frame {f}) is also {written[p]}; give every frame its own "
+                                  "file (a run of # for the whole frame number)")
+            written[p] = f"{opt} of frame {f}"
 
 
 def _frame_paths(output, exr, frame: int) -> tuple[Path, Path | None]:
@@ -702,19 +733,28 @@ def _write_frame(sc, frame, image, exr_path, img, solution, seconds, t0) -> dict
            "diffusion_iterations": [d.get("diffusion_iterations", 0) for d in info["domains"]],
            "exposure": exposure, "digest": frame_digest(sc), "hidden": bool(sc.hidden), "warnings": warnings}
     _write_record(image, {**res, "exr": None if exr_path is None else str(exr_path.resolve()),
-                          "scene": sc.source, "method": vars(sc.method)})
+                          "scene": sc.source, "method": vars(sc.method), "bytes": _sizes(image, exr_path)})
     return res
+
+
+def _sizes(image, exr) -> list:
+    """The sizes in bytes of a frame's image and EXR (None where absent): a rerun re-renders a
+    frame whose files are not those its record wrote (truncated, emptied, replaced)."""
+    return [Path(p).stat().st_size if p is not None and Path(p).is_file() else None for p in (image, exr)]
 
 
 def _meter(seq: Sequence, frames, output, exr, overrides) -> tuple[float, int, dict | None]:
     """One exposure for every frame of a sequence whose method.exposure is "auto": the auto
-    exposure of its middle frame; (stops, that frame, its result if it was rendered here). The
+    exposure of its middle frame (of those whose medium is not hidden by ``clip``); (stops, that frame, its result if it was rendered here). The
     middle frame is rendered here and written with those stops (so the run that follows skips
     it), and the stops are kept in a record beside the frames (``.popvol/<output
     pattern>.exposure.json``) for reruns."""
     from .io.files import write_text_atomically
     from .io.images import auto_exposure
-    mid = frames[len(frames) // 2]
+    # the middle of the frames that show the medium (clip can hide it): a hidden frame's exposure
+    # would be the background's
+    shown = [f for f in frames if not seq.medium_file(f)[1]] or list(frames)
+    mid = shown[len(shown) // 2]
     sc = seq.scene(mid, **overrides)
     key = frame_digest(sc)
     meter = Path(str(output)).parent / RECORD_DIR / (Path(str(output)).name + ".exposure.json")
@@ -756,6 +796,7 @@ def render_sequence(scene, frames=None, output: str = "frame_####.png", *, clien
     seq = load_sequence(scene_path)
     frames = seq.resolve_frames(frames)
     check_patterns(output, exr, frames)
+    check_frame_outputs(seq, scene_path, output, exr, frames)
     seq.check_files(frames)
     width, height = overrides.pop("width", None), overrides.pop("height", None)
     options = {"exr": None if exr is None else str(exr), "warm_start": bool(warm_start),
