@@ -462,3 +462,25 @@ def test_the_exposure_is_metered_on_a_frame_that_shows_the_medium(tmp_path):
     p = write(tmp_path, FILE_SEQ.format(files="1-3", mode="clip"))
     stops, mid, res = sq._meter(sq.load_sequence(p), list(range(0, 10)), str(tmp_path / "f_#.png"), None, {})
     assert mid == 2 and res["hidden"] is False and stops != 0.0
+
+
+def test_a_frame_that_cannot_be_made_is_named(tmp_path):
+    """Keyframes that bring the camera onto its target at frame 5: the error names the frame."""
+    p = write(tmp_path, TINY + "[[keyframes]]\nframe = 1\ncamera.origin = [0, 0.5, 3]\n"
+              "[[keyframes]]\nframe = 9\ncamera.origin = [0, 0.5, -3]\n")
+    seq = sq.load_sequence(p)
+    seq.scene(4)
+    with pytest.raises(PopvolError, match=r"s.toml: frame 5: camera.target equals camera.origin"):
+        seq.scene(5)
+
+
+def test_an_edited_exposure_record_is_metered_again(tmp_path):
+    p = write(tmp_path, TINY + "[sequence]\nframes = '1-3'\n")
+    out = tmp_path / "f_#.png"
+    stops, mid, _ = sq._meter(sq.load_sequence(p), [1, 2, 3], str(out), None, {})
+    meter = tmp_path / sq.RECORD_DIR / "f_#.png.exposure.json"
+    rec = json.loads(meter.read_text())
+    for bad in (1e308, 100.0, float("nan")):
+        meter.write_text(json.dumps({**rec, "exposure": bad}))
+        again, _, res = sq._meter(sq.load_sequence(p), [1, 2, 3], str(out), None, {})
+        assert again == pytest.approx(stops) and res is not None

@@ -280,7 +280,13 @@ class Sequence:
         """The :class:`~popvol.scene.Scene` of ``frame``, with ``overrides`` as in
         :func:`popvol.scene.load_scene`."""
         from .scene import apply_overrides, scene_from_dict
-        scene = scene_from_dict(self.data, self.source, self.base_dir, frame=frame)
+        try:
+            scene = scene_from_dict(self.data, self.source, self.base_dir, frame=frame)
+        except PopvolError as e:        # name the frame: keyframes or a frame's file may be what is wrong
+            msg, head = str(e), f"{self.source}: "
+            if self.animated and f"frame {frame}" not in msg:
+                msg = (head + f"frame {frame}: " + msg[len(head):]) if msg.startswith(head) else f"frame {frame}: {msg}"
+            raise PopvolError(msg) from None
         return apply_overrides(scene, **overrides) if overrides else scene
 
     def time(self, frame: int) -> float:
@@ -760,8 +766,9 @@ def _meter(seq: Sequence, frames, output, exr, overrides) -> tuple[float, int, d
     meter = Path(str(output)).parent / RECORD_DIR / (Path(str(output)).name + ".exposure.json")
     try:
         rec = json.loads(meter.read_text())
-        if rec.get("digest") == key and check._is_real(rec.get("exposure")):
-            return float(rec["exposure"]), mid, None
+        stops = rec.get("exposure")
+        if rec.get("digest") == key and check._is_real(stops) and -64.0 <= float(stops) <= 64.0:
+            return float(stops), mid, None       # else (an edited record) metered again
     except (OSError, ValueError, AttributeError):
         pass
     t0 = time.perf_counter()
