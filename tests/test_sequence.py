@@ -169,6 +169,8 @@ def test_missing_files_are_named(tmp_path):
      ["lights[1] is a 'sky' light"]),
     (TINY + '[[keyframes]]\nframe = 1\nlights.0.direction = [1, 0, 0]\n'
             '[[keyframes]]\nframe = 3\nlights.0.direction = [-1, 0, 0]\n', ["turns through zero", "1 and 3"]),
+    (FILE_SEQ.format(files="1-3", mode="clip").replace('mode = "clip"\n', 'mode = "clip"\noffset = 10\n'),
+     ["medium.offset = 10", "before frame 0"]),
 ])
 def test_bad_sequences_give_one_clear_line(tmp_path, text, words):
     np.savez(tmp_path / "vol.npz", density=np.ones((4, 4, 4), np.float32))

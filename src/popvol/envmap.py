@@ -90,7 +90,7 @@ def load(path, scale=1.0, field: str = "scale") -> EnvMap:
     from .io.images import read_exr
     path = Path(path)
     if not path.is_file():
-        raise PopvolError(f"{path}: environment map not found")
+        raise PopvolError(f"{path}: environment map not found" if not Path(path).exists() else f"{path}: not a file")
     suffix = path.suffix.lower()
     if suffix == ".exr":
         rad = read_exr(path)

@@ -336,7 +336,11 @@ def sequence_from_dict(data: dict, source: str = "<dict>", base_dir=".") -> Sequ
     if "frames" in s:
         seq.frames = parse_frames(s["frames"], "sequence.frames", src)
     elif seq.files is not None:
-        seq.frames = [f - seq.offset for f in seq.files if f - seq.offset >= 0] or None
+        seq.frames = [f - seq.offset for f in seq.files if f - seq.offset >= 0]
+        if not seq.frames:
+            raise PopvolError(f"{src}: medium.frames {frames_text(seq.files)} with medium.offset = {seq.offset} put "
+                              "every file before frame 0 (frames are >= 0); lower medium.offset, or give "
+                              "sequence.frames")
     elif seq.keyframes:
         seq.frames = list(range(seq.keyframes[0].frame, seq.keyframes[-1].frame + 1))
     return seq

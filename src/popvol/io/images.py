@@ -232,7 +232,7 @@ def read_exr(path) -> np.ndarray:
     import OpenEXR
     path = Path(path)
     if not path.is_file():
-        raise PopvolError(f"{path}: EXR file not found")
+        raise PopvolError(f"{path}: EXR file not found" if not path.exists() else f"{path}: not a file")
     try:
         with OpenEXR.File(str(path)) as f:
             ch = f.channels()
