@@ -29,8 +29,8 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
 
     One light and channel at a time along a row of voxels (i, j), so that the inner loop reads
     the fields in order and its lobes (render.walk_lobes, render.lobe_toward) have no branches:
-    voxels overlap in the pipeline (1.5 times faster than all lights per voxel; the view
-    direction is recomputed per light, which costs less than keeping it in a row buffer)."""
+    consecutive voxels overlap in the pipeline. The view direction is recomputed per light,
+    which costs less than keeping the row's directions in a buffer."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
     is_point, direction, power, position = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
@@ -72,7 +72,7 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
 
 @nb.njit(inline="always", cache=True)
 def _needed_run(needed, i, j):
-    """The first and one past the last k where needed[i, j, k] (0, 0 if none)."""
+    """(the first k where needed[i, j, k], one past the last): an empty range if there is none."""
     nz = needed.shape[2]
     k0 = 0
     while k0 < nz and not needed[i, j, k0]:
