@@ -609,3 +609,8 @@ def test_bytes_that_are_not_an_npz_are_not_called_a_pickle(tmp_path):
 ])
 def test_option_errors_are_one_line(capsys, args, words):
     cli_refuses(capsys, args, *words)
+
+
+def test_a_bad_width_option_is_not_blamed_on_the_scene(tmp_path, capsys, no_solve):
+    scene = toml_scene(tmp_path, TINY_TOML)
+    cli_refuses(capsys, ["render", scene, "--width", "0", "-o", tmp_path / "x.png"], "(override): camera.width = 0")

@@ -108,7 +108,7 @@ def apply_overrides(scene: Scene, **overrides) -> Scene:
         c = scene.camera
         scene.camera = Camera(c.origin, c.target, c.up, cam_fields.get("fov", c.fov),
                               cam_fields.get("width", c.width), cam_fields.get("height", c.height),
-                              source=c.source)
+                              source=c.source + " (override)")     # --width 0 is not the scene's
     for k, v in meth_fields.items():
         setattr(scene.method, k, v)
     scene.method.validate(scene.source + " (override)")
