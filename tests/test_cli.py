@@ -151,7 +151,8 @@ def test_scene_from_dict_is_plain_data():
 def test_bench_quick_writes_well_formed_figures(tmp_path):
     """`popvol bench --quick` (a smoke test of the benchmark, not a timing test)."""
     out = tmp_path / "bench.json"
-    (tmp_path / "no_data").mkdir()         # the WDAS rows skip (tests/test_bench.py runs them)
+    (tmp_path / "no_data").mkdir()         # the WDAS rows skip (tests/test_bench.py runs them) ...
+    (tmp_path / "no_data" / "wdas_cloud_sixteenth_dense.npz").write_bytes(b"not a volume")   # ... unreadable
     r = popvol("bench", "--quick", "--data", str(tmp_path / "no_data"), "--json", str(out))
     assert r.returncode == 0, r.stderr
     res = json.loads(out.read_text())
@@ -167,7 +168,7 @@ def test_bench_quick_writes_well_formed_figures(tmp_path):
     # cell passes the Southwell threshold is followed by one in which every pending cell sends)
     assert all(n >= it > 0 for n, it in zip(demo["cells_sent"], demo["iterations"]))
     assert demo["cells_sent_per_s"]["min"] > 0
-    assert "not found" in res["scenes"]["wdas_sun"]["skipped"] and "wdas_sun: skipped" in r.stdout
+    assert "not an .npz archive" in res["scenes"]["wdas_sun"]["skipped"] and "wdas_sun: skipped" in r.stdout
     # the procedural field under a point light needs no data: one full-sphere domain (n_phi = 2 n_theta)
     field = res["scenes"]["field_point"]
     assert field["domains"] == 1 and field["domain_shape"][2] == 2 * field["domain_shape"][1]

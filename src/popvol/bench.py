@@ -17,7 +17,7 @@ compiles the kernels and fills the caches.
   every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
   (``popvol/bench_scenes``) and name their volume by file name only; it is looked up in the
   data folder (:func:`find_data`).
-  A scene whose volume is missing is reported as skipped, with the reason.
+  A scene whose volume is missing or unreadable is reported as skipped, with the reason.
 - peak memory of each row: the process's resident-set high-water mark (VmHWM) over the row's
   timed runs, reset before the row through ``/proc/self/clear_refs``; elsewhere than Linux,
   ``ru_maxrss``, the peak of the whole process so far.
@@ -44,6 +44,7 @@ import numba as nb
 import numpy as np
 
 from .domains import directional_domain, resample_medium
+from .errors import PopvolError
 from .pipeline import solve
 from .walk import medium_factors, walk_box
 from .renderer import render
@@ -401,6 +402,13 @@ def run_benchmarks(quick: bool = False, repeat: int | None = None, data: str | P
             load = lambda toml=toml, volume=volume, ov=ov: load_bench_scene(toml, volume, **ov)
             source = f"popvol/bench_scenes/{toml} with {volume}"
         echo(f"{name}: {what}, {repeat} runs ...")
+        if toml is not None and needs_volume(toml):
+            try:                            # a volume that cannot be read skips its rows, as a missing one does
+                load()
+            except PopvolError as e:
+                res["scenes"][name] = {"description": what, "skipped": str(e)}
+                echo(f"{name}: skipped: {e}")
+                continue
         row = {"description": what, **bench_scene(load, repeat, source)}
         if name == "wdas_sun" and not quick:
             row["target_total_s"] = 1.0
