@@ -614,3 +614,15 @@ def test_option_errors_are_one_line(capsys, args, words):
 def test_a_bad_width_option_is_not_blamed_on_the_scene(tmp_path, capsys, no_solve):
     scene = toml_scene(tmp_path, TINY_TOML)
     cli_refuses(capsys, ["render", scene, "--width", "0", "-o", tmp_path / "x.png"], "(override): camera.width = 0")
+
+
+def test_an_output_name_ending_in_a_slash_is_a_folder(tmp_path, capsys, no_solve):
+    scene = toml_scene(tmp_path, TINY_TOML)
+    cli_refuses(capsys, ["render", scene, "-o", f"{tmp_path / 'out.png'}/"], "names a folder")
+
+
+@pytest.mark.parametrize("text", ["１-３", "1-٣"])
+def test_frame_lists_take_ascii_digits_only(text):
+    from popvol.sequence import parse_frames
+    with pytest.raises(PopvolError, match="must be frame numbers"):
+        parse_frames(text, "frames", "s.toml")

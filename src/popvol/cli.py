@@ -459,6 +459,8 @@ def _check_outputs(outputs: dict, inputs) -> None:
     for option, (path, suffixes) in outputs.items():
         if path is None:                  # not given ("" is given, and has no suffix)
             continue
+        if str(path).endswith(("/", os.sep)):
+            raise PopvolError(f"{option} {path}: names a folder (it ends in {str(path)[-1]}); give a file name")
         if Path(path).suffix.lower() not in suffixes:
             raise PopvolError(f"{option} {path}: must end in {' or '.join(suffixes)}")
         _check_writable(path, option)

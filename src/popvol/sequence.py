@@ -86,13 +86,15 @@ def parse_frames(value, name: str, src: str) -> list[int]:
         frames = [int(v) for v in value]
     elif isinstance(value, str) and value.strip() and len(value) <= 4096:
         for item in value.split(","):
-            m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*(?::\s*(\d+)\s*)?)?", item)
+            m = re.fullmatch(r"\s*([0-9]+)\s*(?:-\s*([0-9]+)\s*(?::\s*([0-9]+)\s*)?)?", item, re.ASCII)
             if not m:
                 raise check._error(src, name, value, allowed)
             a = int(m.group(1))
             b = int(m.group(2)) if m.group(2) is not None else a
             step = int(m.group(3)) if m.group(3) is not None else 1
-            if step < 1 or b < a or b > MAX_FRAME:
+            if b > MAX_FRAME:
+                raise check._error(src, name, value, allowed)
+            if step < 1 or b < a:
                 raise check._error(src, name, value, allowed + " (A <= B, STEP >= 1)")
             frames.extend(range(a, b + 1, step))
             if len(frames) > MAX_FRAME + 1:
