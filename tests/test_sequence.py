@@ -486,3 +486,11 @@ def test_an_edited_exposure_record_is_metered_again(tmp_path):
         meter.write_text(json.dumps({**rec, "exposure": bad}))
         again, _, res = sq._meter(sq.load_sequence(p), [1, 2, 3], str(out), None, {})
         assert again == pytest.approx(stops) and res is not None
+
+
+def test_a_hash_in_a_folder_name_is_literal_for_a_plain_name_and_refused_beside_a_run(tmp_path):
+    folder = tmp_path / "take#1"
+    folder.mkdir()
+    sq.check_patterns(str(folder / "f.png"), None, [1])                # one frame, a plain name
+    with pytest.raises(PopvolError, match="# in its folder"):
+        sq.check_patterns(str(folder / "f_##.png"), None, [1, 2])      # which # is the frame?

@@ -603,7 +603,7 @@ def check_patterns(output, exr, frames, src: str = "render") -> None:
         pat = str(pat)
         if Path(pat).suffix.lower() not in suffixes:
             raise PopvolError(f"{opt} {pat}: must end in {' or '.join(suffixes)}")
-        if has_pattern(pat) or "#" in str(Path(pat).parent):
+        if has_pattern(pat):                # (a # in the folder of a plain name is just a character)
             frame_path(pat, 0, opt, src)
         elif len(frames) > 1:
             raise PopvolError(f"{opt} {pat}: {len(frames)} frames ({frames_text(frames)}) need a run of # in the "
