@@ -626,3 +626,14 @@ def test_frame_lists_take_ascii_digits_only(text):
     from popvol.sequence import parse_frames
     with pytest.raises(PopvolError, match="must be frame numbers"):
         parse_frames(text, "frames", "s.toml")
+
+
+def test_a_corrupt_hdr_map_is_one_line_without_opencvs_own(tmp_path, capfd):
+    pytest.importorskip("cv2")
+    from popvol.envmap import _read_hdr
+    path = tmp_path / "bad.hdr"
+    path.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 8\nxx")
+    with pytest.raises(PopvolError, match="not a readable Radiance .hdr image"):
+        _read_hdr(path)
+    out, err = capfd.readouterr()
+    assert out == "" and err == "", (out, err)

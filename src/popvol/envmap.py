@@ -115,7 +115,12 @@ def _read_hdr(path) -> np.ndarray:
     except ImportError:
         raise PopvolError(f"{path}: reading Radiance .hdr needs OpenCV: pip install 'popvol[hdr]' "
                           "(or convert the map to OpenEXR)") from None
-    img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)    # popvol says what failed, in one line
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if img is None or img.ndim != 3 or img.shape[2] != 3:
         raise PopvolError(f"{path}: not a readable Radiance .hdr image")
     return np.ascontiguousarray(img[..., ::-1], np.float32)      # OpenCV gives BGR
