@@ -637,3 +637,21 @@ def test_a_corrupt_hdr_map_is_one_line_without_opencvs_own(tmp_path, capfd):
         _read_hdr(path)
     out, err = capfd.readouterr()
     assert out == "" and err == "", (out, err)
+
+
+def test_an_exr_that_declares_a_huge_image_is_refused_before_its_pixels(tmp_path, capfd):
+    """A header forged to declare 100000x50000 pixels: one line from the header alone (the
+    binding printed a MemoryError for 56 GiB on stdout before)."""
+    import struct
+    from popvol.io.images import read_exr, write_exr
+    write_exr(tmp_path / "small.exr", np.ones((4, 8, 3), np.float32))
+    data = bytearray((tmp_path / "small.exr").read_bytes())
+    at = data.index(b"dataWindow\x00box2i\x00") + len(b"dataWindow\x00box2i\x00") + 4
+    data[at:at + 16] = struct.pack("<4i", 0, 0, 99999, 49999)
+    (tmp_path / "forged.exr").write_bytes(bytes(data))
+    with pytest.raises(PopvolError, match="declares 100000x50000 pixels"):
+        read_exr(tmp_path / "forged.exr")
+    assert capfd.readouterr() == ("", "")
+    (tmp_path / "garbage.exr").write_bytes(b"\x00" * 64)
+    with pytest.raises(PopvolError, match="not a readable OpenEXR file"):
+        read_exr(tmp_path / "garbage.exr")

@@ -227,12 +227,25 @@ def write_exr(path, rgb) -> None:
         raise PopvolError(f"{path}: cannot write EXR ({e})") from None
 
 
+MAX_EXR_SIDE = 65536               # pixels on a side of an EXR that popvol reads (a 64k lat-long map)
+MAX_EXR_PIXELS = 2 ** 29           # ... and in all: 6 GiB as float32 RGB
+
+
 def read_exr(path) -> np.ndarray:
     """float32 (H, W, 3) linear RGB from an EXR with R, G, B channels."""
     import OpenEXR
     path = Path(path)
     if not path.is_file():
         raise PopvolError(f"{path}: EXR file not found" if not path.exists() else f"{path}: not a file")
+    try:
+        with OpenEXR.File(str(path), header_only=True) as f:       # its size before its pixels
+            (x0, y0), (x1, y1) = (np.asarray(v, np.int64) for v in f.header()["dataWindow"])
+        width, height = int(x1) - int(x0) + 1, int(y1) - int(y0) + 1
+    except Exception as e:  # the binding raises plain exceptions
+        raise PopvolError(f"{path}: not a readable OpenEXR file ({e})") from None
+    if not (0 < width <= MAX_EXR_SIDE and 0 < height <= MAX_EXR_SIDE and width * height <= MAX_EXR_PIXELS):
+        raise PopvolError(f"{path}: EXR declares {width}x{height} pixels; popvol reads at most {MAX_EXR_SIDE} "
+                          f"on a side and {MAX_EXR_PIXELS:.3g} in all")
     try:
         with OpenEXR.File(str(path)) as f:
             ch = f.channels()
