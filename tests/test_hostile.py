@@ -655,3 +655,14 @@ def test_an_exr_that_declares_a_huge_image_is_refused_before_its_pixels(tmp_path
     (tmp_path / "garbage.exr").write_bytes(b"\x00" * 64)
     with pytest.raises(PopvolError, match="not a readable OpenEXR file"):
         read_exr(tmp_path / "garbage.exr")
+
+
+def test_a_voxel_size_read_from_the_file_is_blamed_on_the_file(tmp_path, monkeypatch):
+    """A VDB whose transform mirrors an axis gives a negative voxel size: the file is named, not
+    a medium.voxel_size the scene does not set."""
+    from popvol.io import volumes
+    mirrored = volumes.VolumeData(np.ones((4, 4, 4), np.float32), np.array([-1.0, 1.0, 1.0]), np.zeros(3),
+                                  str(tmp_path / "m.vdb"))
+    monkeypatch.setattr(volumes, "read_volume", lambda *a, **k: mirrored)
+    msg = refused(file_scene(tmp_path / "m.vdb"), "m.vdb: voxel size")
+    assert "medium.voxel_size" not in msg

@@ -230,7 +230,10 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
     origin = m.get("origin", vol.origin)
     if "voxel_size" not in m or "origin" not in m:     # a value from the file: name the file
         vs = voxel if not check._is_scalar(voxel) else [voxel] * 3
-        vs = check.vector(vs, "medium.voxel_size", src, positive=True)
+        if "voxel_size" in m:
+            vs = check.vector(vs, "medium.voxel_size", src, positive=True)
+        else:                                    # e.g. a VDB whose transform mirrors an axis
+            vs = check.vector(vs, "voxel size", vol.source, positive=True)
         check_box(vs, check.vector(origin, "medium.origin", src), vol.density.shape,
                   "medium.voxel_size" if "voxel_size" in m else f"the voxel size of {vol.source}",
                   "medium.origin" if "origin" in m else f"the origin of {vol.source}", src)
