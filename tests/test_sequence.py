@@ -494,3 +494,17 @@ def test_a_hash_in_a_folder_name_is_literal_for_a_plain_name_and_refused_beside_
     sq.check_patterns(str(folder / "f.png"), None, [1])                # one frame, a plain name
     with pytest.raises(PopvolError, match="# in its folder"):
         sq.check_patterns(str(folder / "f_##.png"), None, [1, 2])      # which # is the frame?
+
+
+def test_missing_grid_files_of_the_sequence_are_named_before_rendering(tmp_path):
+    """A per-voxel albedo grid of the same sequence (alb_###.npz) missing for some frames: named
+    with the medium files, before any frame is rendered."""
+    npz_frames(tmp_path, [1, 2, 3])
+    for n in (1, 3):
+        np.savez(tmp_path / f"alb_{n:03d}.npz", albedo=np.full((8, 8, 8), 0.5, np.float32))
+    text = FILE_SEQ.format(files="1-3", mode="clip").replace('mode = "clip"\n',
+                                                               'mode = "clip"\nalbedo = {file = "alb_###.npz"}\n')
+    seq = sq.load_sequence(write(tmp_path, text))
+    with pytest.raises(PopvolError, match=r"medium.file and its grid files: 1 file\(s\).*numbers 2 \(alb_002.npz"):
+        seq.check_files([1, 2, 3])
+    seq.check_files([1, 3])

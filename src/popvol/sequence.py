@@ -259,19 +259,27 @@ class Sequence:
         return (p if p.is_absolute() else self.base_dir / p), hidden
 
     def check_files(self, frames) -> None:
-        """Refuse, naming them all, the medium files that ``frames`` read and that do not exist."""
+        """Refuse, naming them all, the medium files (and per-voxel grid files of the same
+        sequence) that ``frames`` read and that do not exist."""
         if self.pattern is None:
             return
         missing: dict[Path, int] = {}
+        m = self.data.get("medium", {})
+        grids = [m[key]["file"] for key in ("albedo", "g")       # per-voxel grids of the same sequence
+                 if isinstance(m.get(key), dict) and isinstance(m[key].get("file"), str) and has_pattern(m[key]["file"])]
         for f in frames:
             p, _ = self.medium_file(f)
-            if p not in missing and not p.is_file():
-                missing[p] = file_number(f, self.files, "extend", self.offset)
+            n = file_number(f, self.files, "extend", self.offset)
+            for q in [p] + [self.base_dir / frame_path(g, n, "medium grid file", self.source) for g in grids]:
+                if q not in missing and not q.is_file():
+                    missing[q] = n
         if missing:
             nums = sorted(set(missing.values()))
             names = ", ".join(p.name for p in list(missing)[:3]) + (", ..." if len(missing) > 3 else "")
             folder = next(iter(missing)).parent
-            raise PopvolError(f"{self.source}: medium.file {self.pattern!r}: {len(nums)} file(s) of medium.frames "
+            what = (f"medium.file {self.pattern!r}" if all(q.name.startswith(Path(self.pattern).name.split("#")[0])
+                                                            for q in missing) else "medium.file and its grid files")
+            raise PopvolError(f"{self.source}: {what}: {len(nums)} file(s) of medium.frames "
                               f"missing, numbers {frames_text(nums)} ({names} in {folder})")
 
     def frame_data(self, frame: int) -> tuple[dict, bool]:
