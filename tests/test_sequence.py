@@ -508,3 +508,21 @@ def test_missing_grid_files_of_the_sequence_are_named_before_rendering(tmp_path)
     with pytest.raises(PopvolError, match=r"medium.file and its grid files: 1 file\(s\).*numbers 2 \(alb_002.npz"):
         seq.check_files([1, 2, 3])
     seq.check_files([1, 3])
+
+
+def test_empty_frame_files_and_unwritable_output_folders_are_named_before_rendering(tmp_path, monkeypatch):
+    """An empty medium file is named with the missing ones; an output folder that cannot be
+    written (here a read-only file system, which refuses even root) is refused before the first
+    frame, not after the frames before it."""
+    import errno
+    npz_frames(tmp_path, [1, 2, 3])
+    (tmp_path / "vol_002.npz").write_bytes(b"")
+    seq = sq.load_sequence(write(tmp_path, FILE_SEQ.format(files="1-3", mode="clip")))
+    with pytest.raises(PopvolError, match=r"missing or empty, numbers 2 \(vol_002.npz"):
+        seq.check_files([1, 2, 3])
+
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system")
+    monkeypatch.setattr(sq.tempfile, "TemporaryFile", read_only)
+    with pytest.raises(PopvolError, match="cannot write in folder .* .Read-only file system"):
+        sq.check_patterns(str(tmp_path / "f_#.png"), None, [1, 2])

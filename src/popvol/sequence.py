@@ -30,6 +30,7 @@ import inspect
 import json
 import math
 import re
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -271,7 +272,7 @@ class Sequence:
             p, _ = self.medium_file(f)
             n = file_number(f, self.files, "extend", self.offset)
             for q in [p] + [self.base_dir / frame_path(g, n, "medium grid file", self.source) for g in grids]:
-                if q not in missing and not q.is_file():
+                if q not in missing and (not q.is_file() or q.stat().st_size == 0):     # an empty file is none
                     missing[q] = n
         if missing:
             nums = sorted(set(missing.values()))
@@ -280,7 +281,7 @@ class Sequence:
             what = (f"medium.file {self.pattern!r}" if all(q.name.startswith(Path(self.pattern).name.split("#")[0])
                                                             for q in missing) else "medium.file and its grid files")
             raise PopvolError(f"{self.source}: {what}: {len(nums)} file(s) of medium.frames "
-                              f"missing, numbers {frames_text(nums)} ({names} in {folder})")
+                              f"missing or empty, numbers {frames_text(nums)} ({names} in {folder})")
 
     def frame_data(self, frame: int) -> tuple[dict, bool]:
         """(the plain scene data of ``frame``, whether its medium is hidden by ``clip``)."""
@@ -620,6 +621,11 @@ def check_patterns(output, exr, frames, src: str = "render") -> None:
         folder = Path(pat).resolve().parent
         if not folder.is_dir():
             raise PopvolError(f"{opt} {pat}: folder {folder} does not exist")
+        try:                                # the frames are written through files beside them
+            with tempfile.TemporaryFile(dir=folder):
+                pass
+        except OSError as e:
+            raise PopvolError(f"{opt} {pat}: cannot write in folder {folder} ({e.strerror or e})") from None
     if exr is not None and Path(str(exr)).resolve() == Path(str(output)).resolve():
         raise PopvolError(f"--exr {exr} is also -o/--output; give them different names")
 
