@@ -523,6 +523,7 @@ def test_empty_frame_files_and_unwritable_output_folders_are_named_before_render
 
     def read_only(*args, **kwargs):
         raise OSError(errno.EROFS, "Read-only file system")
-    monkeypatch.setattr(sq.tempfile, "TemporaryFile", read_only)
+    import popvol.io.files
+    monkeypatch.setattr(popvol.io.files.tempfile, "TemporaryFile", read_only)
     with pytest.raises(PopvolError, match="cannot write in folder .* .Read-only file system"):
         sq.check_patterns(str(tmp_path / "f_#.png"), None, [1, 2])

@@ -444,12 +444,8 @@ def _check_writable(path: str, option: str) -> None:
         raise PopvolError(f"{option} {path}: folder {parent} does not exist")
     if Path(path).is_dir():
         raise PopvolError(f"{option} {path}: is a folder, not a file")
-    try:                                  # the outputs are written through a file beside them
-        import tempfile
-        with tempfile.TemporaryFile(dir=parent):
-            pass
-    except OSError as e:
-        raise PopvolError(f"{option} {path}: cannot write in folder {parent} ({e.strerror or e})") from None
+    from .io.files import check_writable_folder
+    check_writable_folder(parent, f"{option} {path}")
 
 
 def _check_outputs(outputs: dict, inputs) -> None:

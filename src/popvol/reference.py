@@ -206,28 +206,43 @@ def load_reference(path) -> Reference:
     meta_path, sums_path = _sidecars(path)
     meta, variance, spp, passes = {}, None, 0, 1
     if meta_path.is_file():
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (OSError, ValueError) as e:
-            raise PopvolError(f"{meta_path}: cannot read reference metadata ({e})") from None
-        if not isinstance(meta, dict):
-            raise PopvolError(f"{meta_path}: reference metadata must be a JSON object (popvol reference writes one)")
-        spp = _meta_number(meta, "spp", 0, meta_path, int, 1)
-        passes = _meta_number(meta, "passes", 1, meta_path, int, 1)
-        _meta_number(meta, "seconds", 0.0, meta_path, float, 0.0)
+        meta = _read_meta(meta_path)
+        spp, passes = int(meta.get("spp", 0)), int(meta.get("passes", 1))
     if sums_path.is_file() and passes >= 2:
-        try:
-            with np.load(sums_path, allow_pickle=False) as z:
-                s, s2 = np.asarray(z["sum"], np.float64), np.asarray(z["sumsq"], np.float64)
-        except (OSError, ValueError, KeyError, EOFError) as e:
-            raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums (keys sum and sumsq; "
-                              f"{e})") from None
-        if s.shape != image.shape or s2.shape != image.shape:
-            raise PopvolError(f"{sums_path}: sums of shape {s.shape} and {s2.shape} do not match the image "
-                              f"{path.name} ({image.shape})")
+        s, s2 = _read_sums(sums_path, image.shape)
         mean = s / passes
         variance = np.maximum(s2 / passes - mean ** 2, 0.0) / (passes - 1)
     return Reference(image, spp, passes, variance, meta)
+
+
+def _read_meta(meta_path: Path) -> dict:
+    """A reference's metadata (REF.exr.json): a JSON object whose spp, passes (integers >= 1)
+    and seconds (>= 0) are checked where present."""
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError) as e:
+        raise PopvolError(f"{meta_path}: cannot read reference metadata ({e})") from None
+    if not isinstance(meta, dict):
+        raise PopvolError(f"{meta_path}: reference metadata must be a JSON object (popvol reference writes one)")
+    _meta_number(meta, "spp", 0, meta_path, int, 1)
+    _meta_number(meta, "passes", 1, meta_path, int, 1)
+    _meta_number(meta, "seconds", 0.0, meta_path, float, 0.0)
+    return meta
+
+
+def _read_sums(sums_path: Path, shape) -> tuple[np.ndarray, np.ndarray]:
+    """A reference's per-pixel sum and sum of squares over its passes (REF.exr.npz), float64 of
+    ``shape`` (H, W, 3)."""
+    try:
+        with np.load(sums_path, allow_pickle=False) as z:
+            s, s2 = np.asarray(z["sum"], np.float64), np.asarray(z["sumsq"], np.float64)
+    except (OSError, ValueError, KeyError, EOFError) as e:
+        raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums (keys sum and sumsq; "
+                          f"{e})") from None
+    if s.shape != tuple(shape) or s2.shape != tuple(shape):
+        raise PopvolError(f"{sums_path}: sums of shape {s.shape} and {s2.shape} do not match the image's "
+                          f"{tuple(shape)}; resume at the image's size or choose another output")
+    return s, s2
 
 
 def _meta_number(meta: dict, key: str, default, meta_path: Path, kind, minimum):
@@ -264,20 +279,12 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
         if not (meta_path.is_file() and sums_path.is_file()):
             raise PopvolError(f"{output}: exists without its {meta_path.name} / {sums_path.name}; "
                               "remove it or choose another output to start a new reference")
-        prev = load_reference(output)             # its sidecars checked
-        meta = prev.meta
+        meta = _read_meta(meta_path)
         if meta.get("scene_digest") != digest:
             raise PopvolError(f"{output}: was rendered for another scene ({meta.get('scene')}); "
                               "choose another output")
-        try:
-            with np.load(sums_path, allow_pickle=False) as z:
-                s, s2 = z["sum"].astype(np.float64), z["sumsq"].astype(np.float64)
-        except (OSError, ValueError, KeyError, EOFError) as e:
-            raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums ({e})") from None
-        if s.shape != (scene.camera.height, scene.camera.width, 3):
-            raise PopvolError(f"{output}: is {s.shape[1]}x{s.shape[0]}, the scene {scene.camera.width}x"
-                              f"{scene.camera.height}; resume at the same size or choose another output")
-        done_passes, done_spp = prev.passes, prev.spp
+        s, s2 = _read_sums(sums_path, (scene.camera.height, scene.camera.width, 3))
+        done_passes, done_spp = int(meta.get("passes", 1)), int(meta.get("spp", 0))
         seconds = float(meta.get("seconds", 0.0))
         if _meta_number(meta, "max_depth", 1024, meta_path, int, -1) != max_depth:
             raise PopvolError(f"{output}: was rendered with --max-depth {meta.get('max_depth', 1024)}; resume "

@@ -30,7 +30,6 @@ import inspect
 import json
 import math
 import re
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from . import check
+from .io.files import check_writable_folder
 from .errors import PopvolError
 from .procedural import MOVING_STYLES
 
@@ -265,21 +265,23 @@ class Sequence:
         if self.pattern is None:
             return
         missing: dict[Path, int] = {}
+        grid_missing = False
         m = self.data.get("medium", {})
         grids = [m[key]["file"] for key in ("albedo", "g")       # per-voxel grids of the same sequence
                  if isinstance(m.get(key), dict) and isinstance(m[key].get("file"), str) and has_pattern(m[key]["file"])]
         for f in frames:
             p, _ = self.medium_file(f)
             n = file_number(f, self.files, "extend", self.offset)
-            for q in [p] + [self.base_dir / frame_path(g, n, "medium grid file", self.source) for g in grids]:
+            for q, grid in [(p, False)] + [(self.base_dir / frame_path(g, n, "medium grid file", self.source), True)
+                                           for g in grids]:
                 if q not in missing and (not q.is_file() or q.stat().st_size == 0):     # an empty file is none
                     missing[q] = n
+                    grid_missing = grid_missing or grid
         if missing:
             nums = sorted(set(missing.values()))
             names = ", ".join(p.name for p in list(missing)[:3]) + (", ..." if len(missing) > 3 else "")
             folder = next(iter(missing)).parent
-            what = (f"medium.file {self.pattern!r}" if all(q.name.startswith(Path(self.pattern).name.split("#")[0])
-                                                            for q in missing) else "medium.file and its grid files")
+            what = "medium.file and its grid files" if grid_missing else f"medium.file {self.pattern!r}"
             raise PopvolError(f"{self.source}: {what}: {len(nums)} file(s) of medium.frames "
                               f"missing or empty, numbers {frames_text(nums)} ({names} in {folder})")
 
@@ -621,11 +623,7 @@ def check_patterns(output, exr, frames, src: str = "render") -> None:
         folder = Path(pat).resolve().parent
         if not folder.is_dir():
             raise PopvolError(f"{opt} {pat}: folder {folder} does not exist")
-        try:                                # the frames are written through files beside them
-            with tempfile.TemporaryFile(dir=folder):
-                pass
-        except OSError as e:
-            raise PopvolError(f"{opt} {pat}: cannot write in folder {folder} ({e.strerror or e})") from None
+        check_writable_folder(folder, f"{opt} {pat}")
     if exr is not None and Path(str(exr)).resolve() == Path(str(output)).resolve():
         raise PopvolError(f"--exr {exr} is also -o/--output; give them different names")
 
@@ -689,16 +687,13 @@ def render_run(scene_path, frames, output: str, options: dict | None = None, pro
     frames = [int(f) for f in frames]
     frames = parse_frames(frames, "frames", seq.source) if frames else []
     check_patterns(output, exr, frames)
+    check_frame_outputs(seq, scene_path, output, exr, frames)
     seq.check_files(frames)
     results, prev = [], None
     for frame in frames:
         t0 = time.perf_counter()
         sc = seq.scene(frame, **overrides)
         image, exr_path = _frame_paths(output, exr, frame)
-        inputs = {Path(p).resolve() for p in sc.files}
-        for opt, p in (("-o/--output", image), ("--exr", exr_path)):
-            if p is not None and p.resolve() in inputs:
-                raise PopvolError(f"{opt} {p} is an input file of frame {frame}; writing it would overwrite it")
         digest = frame_digest(sc)
         rec = _done(image, exr_path, digest)
         if rec is not None:
@@ -771,8 +766,8 @@ def _sizes(image, exr) -> list:
 
 def _meter(seq: Sequence, frames, output, exr, overrides) -> tuple[float, int, dict | None]:
     """One exposure for every frame of a sequence whose method.exposure is "auto": the auto
-    exposure of its middle frame (of those whose medium is not hidden by ``clip``); (stops, that frame, its result if it was rendered here). The
-    middle frame is rendered here and written with those stops (so the run that follows skips
+    exposure of its middle frame (of those whose medium ``clip`` does not hide); (stops, that
+    frame, its result if it was rendered here). The middle frame is rendered here and written with those stops (so the run that follows skips
     it), and the stops are kept in a record beside the frames (``.popvol/<output
     pattern>.exposure.json``) for reruns."""
     from .io.files import write_text_atomically

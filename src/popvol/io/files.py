@@ -30,3 +30,14 @@ def write_atomically(path, write) -> None:
 def write_text_atomically(path, text: str) -> None:
     """:func:`write_atomically` for a text file (UTF-8)."""
     write_atomically(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+
+
+def check_writable_folder(folder, what: str) -> None:
+    """A one-line PopvolError unless a file can be created in ``folder`` (outputs are written
+    through a temporary file beside them); ``what`` starts the message (an option and its value)."""
+    from ..errors import PopvolError
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        raise PopvolError(f"{what}: cannot write in folder {folder} ({e.strerror or e})") from None
