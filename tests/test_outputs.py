@@ -100,6 +100,38 @@ def test_interrupted_write_leaves_the_old_image(tmp_path, monkeypatch):
     assert [p.name for p in tmp_path.iterdir()] == ["cloud.png"]      # no temporary file left
 
 
+class _FullDiskExr:
+    """Stands in for OpenEXR.File when writing: fails as a full disk would, after a partial file."""
+    def __init__(self, *a, **k):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def write(self, path):
+        Path(path).write_bytes(b"v/1\x01 partial")
+        raise RuntimeError("No space left on device")
+
+
+@pytest.mark.parametrize("old_png", [False, True])
+def test_a_failed_exr_leaves_the_png_as_it_was(tiny, tmp_path, monkeypatch, capsys, old_png):
+    """-o and --exr are written together: the EXR failing replaces neither (a new PNG is not
+    left behind, an old one keeps its bytes) and the error is one line naming the EXR."""
+    import OpenEXR
+    out, exr = tmp_path / "a.png", tmp_path / "a.exr"
+    if old_png:
+        out.write_bytes(b"old")
+    monkeypatch.setattr(OpenEXR, "File", _FullDiskExr)
+    assert run(["render", tiny, "-o", out, "--exr", exr]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(exr) in err and "No space left" in err
+    assert (out.read_bytes() == b"old") if old_png else not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["a.png", "tiny.toml"] if old_png else ["tiny.toml"])
+
+
 def test_ctrl_c_exits_130_and_writes_nothing(tiny, tmp_path, monkeypatch, capsys):
     import popvol
 

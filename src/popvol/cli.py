@@ -112,9 +112,7 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
         t_render = time.perf_counter() - t1
         bar.update(task, completed=1, total=1)
     t2 = time.perf_counter()
-    write_image(output, img, sc.method.exposure, sc.method.tone)
-    if exr:
-        write_image(exr, img)
+    write_image(output, img, sc.method.exposure, sc.method.tone, exr=exr or None)
     t_write = time.perf_counter() - t2
     seconds = {"load": t_load, **solution.seconds, "render": t_render, "write": t_write,
                "total": time.perf_counter() - t0}

@@ -736,11 +736,9 @@ def _write_frame(sc, frame, image, exr_path, img, solution, seconds, t0) -> dict
     exposure = None
     if image.suffix.lower() == ".png":
         exposure = float(min(64.0, max(-64.0, resolve_exposure(img, sc.method.exposure, sc.method.tone))))
-        write_image(image, img, exposure, sc.method.tone)
+        write_image(image, img, exposure, sc.method.tone, exr=exr_path)
     else:
-        write_image(image, img)
-    if exr_path is not None:
-        write_image(exr_path, img)
+        write_image(image, img, exr=exr_path)
     info = solution.stats()
     warnings = []
     for d in info["domains"]:

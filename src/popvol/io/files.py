@@ -12,18 +12,33 @@ def write_atomically(path, write) -> None:
     then rename it over ``path`` in one step: an error, Ctrl-C or a full disk leaves ``path``
     as it was, and a reader never sees a partial file. The file gets the permissions the
     umask gives new files."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    write_atomically_together([(path, write)])
+
+
+def write_atomically_together(items) -> None:
+    """:func:`write_atomically` for several files that belong together (an image and its EXR):
+    ``items`` is a list of (path, write). Every file is written to its temporary file first and
+    only then are they renamed over their paths, so a write that fails (a full disk, an error,
+    Ctrl-C) replaces none of them."""
+    umask = os.umask(0)
+    os.umask(umask)
+    temps = []
     try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        write(Path(tmp))
-        os.replace(tmp, path)
+        for path, write in items:
+            path = Path(path)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
+            os.close(fd)
+            temps.append((Path(tmp), path))
+            os.chmod(tmp, 0o666 & ~umask)
+            write(Path(tmp))
+        while temps:
+            tmp, path = temps[0]
+            os.replace(tmp, path)
+            temps.pop(0)
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        for tmp, _ in temps:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
         raise
 
 

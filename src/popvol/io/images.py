@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PopvolError
-from .files import write_atomically
+from .files import write_atomically_together
 
 SUFFIXES = (".png", ".exr")
 
@@ -202,29 +202,55 @@ def _check(path: Path, rgb) -> np.ndarray:
     return rgb
 
 
+def _png_writer(path: Path, rgb, exposure="auto", tone: str = "aces"):
+    """write(tmp) of an 8-bit sRGB PNG of :func:`tonemap` (``exposure`` in stops or "auto",
+    ``tone``); OSError becomes a one-line PopvolError naming ``path``."""
+    from PIL import Image
+    image = Image.fromarray(tonemap(_check(path, rgb), exposure, tone), "RGB")
+
+    def write(tmp):
+        try:
+            image.save(tmp, format="PNG")
+        except OSError as e:
+            raise PopvolError(f"{path}: cannot write PNG ({e})") from None
+    return write
+
+
+def _exr_writer(path: Path, rgb):
+    """write(tmp) of linear float32 RGB, ZIP-compressed scanlines; the binding's errors become a
+    one-line PopvolError naming ``path``."""
+    import OpenEXR
+    rgb = np.ascontiguousarray(_check(path, rgb), np.float32)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+
+    def write(tmp):
+        try:
+            with OpenEXR.File(header, {"RGB": rgb}) as f:
+                f.write(str(tmp))
+        except Exception as e:  # the binding raises plain exceptions
+            raise PopvolError(f"{path}: cannot write EXR ({e})") from None
+    return write
+
+
+def _write(items) -> None:
+    """Write (path, write) pairs together (io/files.py); an OSError of the temporary files
+    or the renames becomes a one-line PopvolError naming the first path."""
+    try:
+        write_atomically_together(items)
+    except OSError as e:
+        raise PopvolError(f"{items[0][0]}: cannot write ({e.strerror or e})") from None
+
+
 def write_png(path, rgb, exposure="auto", tone: str = "aces") -> None:
     """8-bit sRGB PNG of :func:`tonemap` (``exposure`` in stops or "auto", ``tone``)."""
-    from PIL import Image
     path = Path(path)
-    rgb = _check(path, rgb)
-    image = Image.fromarray(tonemap(rgb, exposure, tone), "RGB")
-    try:
-        write_atomically(path, lambda tmp: image.save(tmp, format="PNG"))
-    except OSError as e:
-        raise PopvolError(f"{path}: cannot write PNG ({e})") from None
+    _write([(path, _png_writer(path, rgb, exposure, tone))])
 
 
 def write_exr(path, rgb) -> None:
     """Linear float32 RGB, ZIP-compressed scanlines."""
-    import OpenEXR
     path = Path(path)
-    rgb = np.ascontiguousarray(_check(path, rgb), np.float32)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    try:
-        with OpenEXR.File(header, {"RGB": rgb}) as f:
-            write_atomically(path, lambda tmp: f.write(str(tmp)))
-    except Exception as e:  # the binding raises plain exceptions
-        raise PopvolError(f"{path}: cannot write EXR ({e})") from None
+    _write([(path, _exr_writer(path, rgb))])
 
 
 MAX_EXR_SIDE = 65536               # pixels on a side of an EXR that popvol reads (a 64k lat-long map)
@@ -262,13 +288,21 @@ def read_exr(path) -> np.ndarray:
     return np.asarray(rgb, np.float32)
 
 
-def write_image(path, rgb, exposure="auto", tone: str = "aces") -> None:
-    """Write by suffix: .png (tone mapped with ``exposure`` and ``tone``, see :func:`tonemap`)
-    or .exr (linear; exposure and tone do not apply)."""
-    suffix = Path(path).suffix.lower()
+def _writer(path: Path, rgb, exposure="auto", tone: str = "aces"):
+    suffix = path.suffix.lower()
     if suffix == ".png":
-        write_png(path, rgb, exposure, tone)
-    elif suffix == ".exr":
-        write_exr(path, rgb)
-    else:
-        raise PopvolError(f"{path}: unsupported image type {suffix or '(none)'}; use one of {', '.join(SUFFIXES)}")
+        return _png_writer(path, rgb, exposure, tone)
+    if suffix == ".exr":
+        return _exr_writer(path, rgb)
+    raise PopvolError(f"{path}: unsupported image type {suffix or '(none)'}; use one of {', '.join(SUFFIXES)}")
+
+
+def write_image(path, rgb, exposure="auto", tone: str = "aces", exr=None) -> None:
+    """Write by suffix: .png (tone mapped with ``exposure`` and ``tone``, see :func:`tonemap`)
+    or .exr (linear; exposure and tone do not apply). ``exr``: also write the linear image
+    there, together with ``path``: if either write fails, neither file is replaced."""
+    path = Path(path)
+    items = [(path, _writer(path, rgb, exposure, tone))]
+    if exr is not None:
+        items.append((Path(exr), _exr_writer(Path(exr), rgb)))
+    _write(items)
