@@ -510,6 +510,50 @@ def test_missing_grid_files_of_the_sequence_are_named_before_rendering(tmp_path)
     seq.check_files([1, 3])
 
 
+@pytest.mark.parametrize("damage, words", [
+    (lambda p: p.write_bytes(p.read_bytes()[:200]), "cannot read as .npz"),          # truncated
+    (lambda p: p.write_bytes(b"not a zip at all" * 8), "is not an .npz archive"),
+    (lambda p: np.savez(p, smoke=np.ones((4, 4, 4), np.float32)), "no array named 'density'"),
+])
+def test_an_unreadable_frame_file_is_named_with_its_frame_before_rendering(tmp_path, damage, words):
+    """A frame file that exists but whose headers cannot be read (truncated, not an archive, no
+    density array) is refused by check_files with its frame, before any frame renders, and
+    render_run writes no frame."""
+    npz_frames(tmp_path, [1, 2, 3])
+    damage(tmp_path / "vol_003.npz")
+    scene = write(tmp_path, FILE_SEQ.format(files="1-3", mode="clip"))
+    seq = sq.load_sequence(scene)
+    with pytest.raises(PopvolError, match=rf"frame 3: .*vol_003.npz: {words}"):
+        seq.check_files([1, 2, 3])
+    seq.check_files([1, 2])
+    with pytest.raises(PopvolError, match="frame 3"):
+        sq.render_run(scene, [1, 2, 3], str(tmp_path / "out_#.png"))
+    assert not list(tmp_path.glob("out_*"))
+
+
+def test_volume_headers_are_checked_like_the_readers(tmp_path):
+    """io.volumes.check_volume_header passes the files read_volume reads and refuses, in one
+    line naming the file, a .vol whose size or header is wrong and a .vdb without the magic."""
+    from popvol.io.volumes import check_volume_header, read_volume, write_vol
+    good = tmp_path / "a.vol"
+    write_vol(good, np.ones((3, 4, 5), np.float32), [0, 0, 0], [1, 1, 1])
+    check_volume_header(good)
+    read_volume(good)
+    short = tmp_path / "b.vol"
+    short.write_bytes(good.read_bytes()[:-4])
+    for f in (check_volume_header, read_volume):
+        with pytest.raises(PopvolError, match=r"b.vol: file has .* bytes but its 3x4x5 header needs"):
+            f(short)
+    fake = tmp_path / "c.vdb"
+    fake.write_bytes(b"VOL" + bytes(60))
+    with pytest.raises(PopvolError, match=r"c.vdb: not an OpenVDB file"):
+        check_volume_header(fake)
+    from conftest import SHARED
+    for real in (SHARED / "vdb" / "smoke1.vdb", SHARED / "vol" / "smoke1.vol"):
+        if real.exists():
+            check_volume_header(real)
+
+
 def test_empty_frame_files_and_unwritable_output_folders_are_named_before_rendering(tmp_path, monkeypatch):
     """An empty medium file is named with the missing ones; an output folder that cannot be
     written (here a read-only file system, which refuses even root) is refused before the first

@@ -261,22 +261,31 @@ class Sequence:
 
     def check_files(self, frames) -> None:
         """Refuse, naming them all, the medium files (and per-voxel grid files of the same
-        sequence) that ``frames`` read and that do not exist."""
+        sequence) that ``frames`` read and that do not exist; then refuse the first whose
+        headers say it cannot be read (io.volumes.check_volume_header), naming its frame."""
         if self.pattern is None:
             return
+        from .io.volumes import check_volume_header
         missing: dict[Path, int] = {}
+        present: dict[Path, tuple[int, str | None]] = {}
         grid_missing = False
         m = self.data.get("medium", {})
-        grids = [m[key]["file"] for key in ("albedo", "g")       # per-voxel grids of the same sequence
+        name = m.get("grid") if isinstance(m.get("grid"), str) else None
+        grids = [(m[key]["file"], m[key].get("grid", key))      # per-voxel grids of the same sequence
+                 for key in ("albedo", "g")
                  if isinstance(m.get(key), dict) and isinstance(m[key].get("file"), str) and has_pattern(m[key]["file"])]
         for f in frames:
             p, _ = self.medium_file(f)
             n = file_number(f, self.files, "extend", self.offset)
-            for q, grid in [(p, False)] + [(self.base_dir / frame_path(g, n, "medium grid file", self.source), True)
-                                           for g in grids]:
-                if q not in missing and (not q.is_file() or q.stat().st_size == 0):     # an empty file is none
+            for q, grid, array in [(p, False, name)] + [
+                    (self.base_dir / frame_path(g, n, "medium grid file", self.source), True, a) for g, a in grids]:
+                if q in missing or q in present:
+                    continue
+                if not q.is_file() or q.stat().st_size == 0:     # an empty file is none
                     missing[q] = n
                     grid_missing = grid_missing or grid
+                else:
+                    present[q] = (f, None if q.suffix.lower() == ".vol" else array)
         if missing:
             nums = sorted(set(missing.values()))
             names = ", ".join(p.name for p in list(missing)[:3]) + (", ..." if len(missing) > 3 else "")
@@ -284,6 +293,11 @@ class Sequence:
             what = "medium.file and its grid files" if grid_missing else f"medium.file {self.pattern!r}"
             raise PopvolError(f"{self.source}: {what}: {len(nums)} file(s) of medium.frames "
                               f"missing or empty, numbers {frames_text(nums)} ({names} in {folder})")
+        for q, (f, array) in present.items():
+            try:
+                check_volume_header(q, array if isinstance(array, str) else None)
+            except PopvolError as e:
+                raise PopvolError(f"{self.source}: frame {f}: {e}") from None
 
     def frame_data(self, frame: int) -> tuple[dict, bool]:
         """(the plain scene data of ``frame``, whether its medium is hidden by ``clip``)."""

@@ -6,6 +6,7 @@ cells, [origin - voxel/2, origin + (n - 1/2) voxel].
 """
 from __future__ import annotations
 
+import contextlib
 import struct
 import zipfile
 from dataclasses import dataclass
@@ -69,24 +70,10 @@ def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
     (1 or 3 values) and ``world_of_ijk_min`` (centre of voxel (0, 0, 0)); defaults 1 and 0."""
     path = Path(path)
     key = grid or "density"
-    try:
-        # open the file ourselves: np.load leaks its handle when it rejects a file
-        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
-            if key not in z.files:
-                raise PopvolError(f"{path}: no array named {key!r}; arrays in the file: {', '.join(z.files) or '(none)'}")
-            _check_npz_member(z, key, path)
-            density = z[key]
-            voxel = z["voxel_size"] if "voxel_size" in z.files else None
-            origin = z["world_of_ijk_min"] if "world_of_ijk_min" in z.files else None
-    except PopvolError:
-        raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as e:
-        if "pickled" in str(e):             # NumPy's word for anything that is neither zip nor .npy
-            raise PopvolError(f"{path}: is not an .npz archive (NumPy's zip of arrays, numpy.savez)") from None
-        raise PopvolError(f"{path}: cannot read as .npz ({e})") from None
-    except (TypeError, AttributeError):     # np.load gave a plain array: .npy content
-        raise PopvolError(f"{path}: holds a single .npy array, not an .npz archive; save it with "
-                          f"numpy.savez(path, density=array)") from None
+    with _npz_member(path, key) as z:
+        density = z[key]
+        voxel = z["voxel_size"] if "voxel_size" in z.files else None
+        origin = z["world_of_ijk_min"] if "world_of_ijk_min" in z.files else None
     voxel = _vec3(voxel, str(path), "voxel_size", 1.0)
     if np.any(voxel <= 0):
         raise PopvolError(f"{path}: voxel_size = {voxel.tolist()} must be > 0")
@@ -97,6 +84,29 @@ def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
 #: Bytes per voxel of a grid while it is read and checked: the file's array, its float32 copy
 #: and the masks of the checks (beside the array's own itemsize).
 BYTES_PER_READ_VOXEL = 4 + 2
+
+
+@contextlib.contextmanager
+def _npz_member(path: Path, key: str):
+    """The open archive of .npz ``path`` once array ``key``'s header is checked
+    (:func:`_check_npz_member`); what the archive or NumPy rejects becomes a one-line PopvolError
+    naming the file."""
+    try:
+        # open the file ourselves: np.load leaks its handle when it rejects a file
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
+            if key not in z.files:
+                raise PopvolError(f"{path}: no array named {key!r}; arrays in the file: {', '.join(z.files) or '(none)'}")
+            _check_npz_member(z, key, path)
+            yield z
+    except PopvolError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as e:
+        if "pickled" in str(e):             # NumPy's word for anything that is neither zip nor .npy
+            raise PopvolError(f"{path}: is not an .npz archive (NumPy's zip of arrays, numpy.savez)") from None
+        raise PopvolError(f"{path}: cannot read as .npz ({e})") from None
+    except (TypeError, AttributeError):     # np.load gave a plain array: .npy content
+        raise PopvolError(f"{path}: holds a single .npy array, not an .npz archive; save it with "
+                          f"numpy.savez(path, density=array)") from None
 
 
 def _check_npz_member(z, key: str, path: Path) -> None:
@@ -132,12 +142,22 @@ def read_vol(path, signed: bool = False) -> VolumeData:
         raw = path.read_bytes()
     except OSError as e:
         raise PopvolError(f"{path}: cannot read ({e.strerror})") from None
-    if len(raw) < VOL_HEADER_BYTES or raw[:3] != b"VOL":
+    nx, ny, nz, lo, hi = _vol_header(raw[:VOL_HEADER_BYTES], len(raw), path)
+    data = np.frombuffer(raw, "<f4", offset=VOL_HEADER_BYTES).reshape(nz, ny, nx)
+    density = validate_density(data.transpose(2, 1, 0), str(path), "density", signed)
+    voxel = (hi - lo) / np.array([nx, ny, nz])
+    return VolumeData(density, voxel, lo + voxel / 2, str(path))
+
+
+def _vol_header(head: bytes, size: int, path: Path) -> tuple[int, int, int, np.ndarray, np.ndarray]:
+    """(nx, ny, nz, bbox min, bbox max) of a .vol file from its first VOL_HEADER_BYTES bytes
+    ``head`` and its size in bytes; a one-line PopvolError where either is not what popvol reads."""
+    if len(head) < VOL_HEADER_BYTES or head[:3] != b"VOL":
         raise PopvolError(f"{path}: not a Mitsuba .vol file (header must start with 'VOL')")
-    if raw[3] != 3:
-        raise PopvolError(f"{path}: .vol version {raw[3]}; popvol reads version 3")
-    encoding, nx, ny, nz, channels = struct.unpack_from("<5i", raw, 4)
-    bbox = np.array(struct.unpack_from("<6f", raw, 24), np.float64)
+    if head[3] != 3:
+        raise PopvolError(f"{path}: .vol version {head[3]}; popvol reads version 3")
+    encoding, nx, ny, nz, channels = struct.unpack_from("<5i", head, 4)
+    bbox = np.array(struct.unpack_from("<6f", head, 24), np.float64)
     if encoding != 1:
         raise PopvolError(f"{path}: .vol encoding {encoding}; popvol reads encoding 1 (float32)")
     if channels != 1:
@@ -145,15 +165,39 @@ def read_vol(path, signed: bool = False) -> VolumeData:
     if min(nx, ny, nz) < 1:
         raise PopvolError(f"{path}: .vol resolution {nx}x{ny}x{nz} must be >= 1 along every axis")
     expected = VOL_HEADER_BYTES + 4 * nx * ny * nz
-    if len(raw) != expected:
-        raise PopvolError(f"{path}: file has {len(raw)} bytes but its {nx}x{ny}x{nz} header needs {expected}")
+    if size != expected:
+        raise PopvolError(f"{path}: file has {size} bytes but its {nx}x{ny}x{nz} header needs {expected}")
     lo, hi = bbox[:3], bbox[3:]
     if not np.all(np.isfinite(bbox)) or np.any(hi <= lo):
         raise PopvolError(f"{path}: .vol bbox {bbox.tolist()} must have max > min on every axis")
-    data = np.frombuffer(raw, "<f4", offset=VOL_HEADER_BYTES).reshape(nz, ny, nx)
-    density = validate_density(data.transpose(2, 1, 0), str(path), "density", signed)
-    voxel = (hi - lo) / np.array([nx, ny, nz])
-    return VolumeData(density, voxel, lo + voxel / 2, str(path))
+    return nx, ny, nz, lo, hi
+
+
+#: the first bytes of an OpenVDB file (its magic number, int32 0x56444220, little-endian)
+VDB_MAGIC = b" BDV"
+
+
+def check_volume_header(path, grid: str | None = None) -> None:
+    """A one-line PopvolError unless ``path`` looks readable by :func:`read_volume`, from its
+    headers alone (cheap enough for every frame of a sequence before the first renders): a
+    .npz's archive directory and the header of array ``grid``; a .vol's header and size; a
+    .vdb's magic number (its grids are only read with the frame). Unknown types and .nvdb are
+    refused as read_volume refuses them."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".npz", ".vol", ".vdb"):
+        read_volume(path, grid)                 # raises, naming what popvol reads
+    if suffix == ".npz":
+        with _npz_member(path, grid or "density"):
+            return
+    try:
+        with open(path, "rb") as f:
+            if suffix == ".vol":
+                _vol_header(f.read(VOL_HEADER_BYTES), path.stat().st_size, path)
+            elif f.read(4) != VDB_MAGIC:
+                raise PopvolError(f"{path}: not an OpenVDB file (no VDB magic number at its start)")
+    except OSError as e:
+        raise PopvolError(f"{path}: cannot read ({e.strerror or e})") from None
 
 
 def write_vol(path, density, bbox_min, bbox_max) -> None:
