@@ -90,6 +90,22 @@ def test_single_grid_of_any_name_and_its_transform(tmp_path):
 
 
 @needs_reader
+def test_a_nonzero_background_fills_the_inactive_voxels_of_the_active_box_only(tmp_path):
+    """docs/SCENE.md: the medium is the active bounding box; its inactive voxels hold the grid's
+    background (as OpenVDB's own dense copy gives them), and outside the box it is empty."""
+    p = tmp_path / "fog.vdb"
+    _write_vdb(p, """
+        g = vdb.FloatGrid(0.5); g.name = "density"
+        a = g.getAccessor(); a.setValueOn((0, 0, 0), 2.0); a.setValueOn((3, 1, 0), 3.0)
+        vdb.write(path, grids=[g])
+    """)
+    v = read_volume(p)
+    expected = np.full((4, 2, 1), 0.5, np.float32)
+    expected[0, 0, 0], expected[3, 1, 0] = 2.0, 3.0
+    np.testing.assert_array_equal(v.density, expected)
+
+
+@needs_reader
 @pytest.mark.parametrize("body, message", [
     ("""
         g = vdb.Vec3SGrid(); g.name = "density"; g.copyFromArray(np.ones((2, 2, 2, 3), np.float32))

@@ -325,6 +325,19 @@ def test_saved_toml_keeps_the_scene_and_makes_paths_absolute(engine, tmp_path):
         engine.save(engine.initial, tmp_path / "missing")
 
 
+def test_a_save_whose_png_fails_leaves_neither_file(engine, tmp_path, monkeypatch):
+    """The saved view's TOML and PNG are written together: a PNG that cannot be written (here
+    a full disk) leaves no scene file without its image, and the error is one line naming it."""
+    from PIL import Image
+
+    def full_disk(self, fp, *a, **k):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(Image.Image, "save", full_disk)
+    with pytest.raises(PopvolError, match=r"popvol-view-001.png: cannot write PNG .*No space left"):
+        engine.save(engine.initial, tmp_path)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_view_resolution_scales_the_method():
     from popvol.scene import Method
     m = Method(resolution=128, diffusion_resolution=64, environment_resolution=64, gather_resolution=64)

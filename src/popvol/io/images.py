@@ -232,9 +232,9 @@ def _exr_writer(path: Path, rgb):
     return write
 
 
-def _write(items) -> None:
-    """Write (path, write) pairs together (io/files.py); an OSError of the temporary files
-    or the renames becomes a one-line PopvolError naming the first path."""
+def write_together(items) -> None:
+    """Write (path, write) pairs together (io.files.write_atomically_together); an OSError of
+    the temporary files or the renames becomes a one-line PopvolError naming the first path."""
     try:
         write_atomically_together(items)
     except OSError as e:
@@ -244,13 +244,13 @@ def _write(items) -> None:
 def write_png(path, rgb, exposure="auto", tone: str = "aces") -> None:
     """8-bit sRGB PNG of :func:`tonemap` (``exposure`` in stops or "auto", ``tone``)."""
     path = Path(path)
-    _write([(path, _png_writer(path, rgb, exposure, tone))])
+    write_together([(path, _png_writer(path, rgb, exposure, tone))])
 
 
 def write_exr(path, rgb) -> None:
     """Linear float32 RGB, ZIP-compressed scanlines."""
     path = Path(path)
-    _write([(path, _exr_writer(path, rgb))])
+    write_together([(path, _exr_writer(path, rgb))])
 
 
 MAX_EXR_SIDE = 65536               # pixels on a side of an EXR that popvol reads (a 64k lat-long map)
@@ -288,7 +288,10 @@ def read_exr(path) -> np.ndarray:
     return np.asarray(rgb, np.float32)
 
 
-def _writer(path: Path, rgb, exposure="auto", tone: str = "aces"):
+def image_writer(path, rgb, exposure="auto", tone: str = "aces"):
+    """write(tmp) of the image :func:`write_image` writes at ``path`` (by its suffix), for
+    io.files.write_atomically_together; its errors are one-line PopvolErrors naming ``path``."""
+    path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".png":
         return _png_writer(path, rgb, exposure, tone)
@@ -302,7 +305,7 @@ def write_image(path, rgb, exposure="auto", tone: str = "aces", exr=None) -> Non
     or .exr (linear; exposure and tone do not apply). ``exr``: also write the linear image
     there, together with ``path``: if either write fails, neither file is replaced."""
     path = Path(path)
-    items = [(path, _writer(path, rgb, exposure, tone))]
+    items = [(path, image_writer(path, rgb, exposure, tone))]
     if exr is not None:
         items.append((Path(exr), _exr_writer(Path(exr), rgb)))
-    _write(items)
+    write_together(items)

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PopvolError
-from ..io.images import auto_exposure, tonemap, write_image
+from ..io.images import auto_exposure, image_writer, tonemap, write_together
 from ..pipeline import solve
 from ..renderer import render
 from ..scene import DEMO_SCENE, load_scene, read_scene_file
@@ -374,11 +374,10 @@ class Engine:
         of = "" if self.frames is None else f", frame {settings.frame} (a still scene of that frame)"
         header = ("# Saved by `popvol view`; `popvol render THIS.toml -o view.png` renders the view again.\n"
                   f"# Scene: {self.base.source}{of}\n\n")
-        try:
-            toml.write_text(header + tomli_w.dumps(self.toml_data(settings)))
-        except OSError as e:
-            raise PopvolError(f"{toml}: cannot write ({e})") from None
-        write_image(png, f.image, f.exposure, self.tone)
+        text = header + tomli_w.dumps(self.toml_data(settings))
+        # both or neither: a PNG that fails to write leaves no scene file without its image
+        write_together([(toml, lambda tmp: tmp.write_text(text, encoding="utf-8")),
+                        (png, image_writer(png, f.image, f.exposure, self.tone))])
         return png, toml
 
 
