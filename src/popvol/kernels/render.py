@@ -349,7 +349,8 @@ def light_channel(grid, spherical, l, c, corners, geometry, d, g, walk, diffuse)
     return val
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
+# compiled on its own, as light_sample is (see there)
+@nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
 def light_in_scattering(lights, grid, spherical, l, corners, x, d, g, walk=True, diffuse=True):
     """Light l's term of L_s / sigma_s at the sample x (RGB): E_l phi_l f_hg(d_l . -d; g A_l),
     split into the lobes of docs/METHOD.md Eq. 23-24 (see :func:`light_channel`; ``walk`` and
@@ -521,7 +522,7 @@ def point_light_room(lights, x, step):
 
 # Compiled on its own and inlined by LLVM (forceinline), not into the caller's Numba IR
 # (inline="always"): Numba-level inlining of the march and its helpers into the parallel loop
-# made compiling the render kernel take about 105 s of a first run, against 25 s so. Without
+# made compiling the render kernel take about 105 s of a first run, against 21 s so. Without
 # reference counting (_nrt=False; it allocates nothing): counted, its array arguments cost
 # atomic increments at every call, and the march ran 1.7-2x slower. error_model="numpy" is
 # what the parallel loop's body has. Images are bitwise those of the inlined march.
