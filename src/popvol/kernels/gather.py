@@ -91,6 +91,54 @@ def mean_inverse_square(r, R):
     return 3.0 / (4.0 * r * R ** 3) * (2.0 * r * R + (R * R - r * r) * log)
 
 
+# compiled on its own, as kernels/render.py's light_sample is (see there)
+@nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffuse, cell_radius):
+    """Row m of ``lobes`` (:func:`emission_lobes`)."""
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    is_point = lights[0]
+    power = lights[POWER]
+    ix, iy, iz = cells[m, 0], cells[m, 1], cells[m, 2]
+    x = (origin[0] + ix * voxel[0], origin[1] + iy * voxel[1], origin[2] + iz * voxel[2])
+    g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[ix, iy, iz]
+    corners = (ix, ix, iy, iy, iz, iz, 0.0, 0.0, 0.0)
+    for l in range(is_point.shape[0]):
+        point, mu, inv_r2, q0, q1, q2 = light_geometry(lights, spherical, l, x, (0.0, 0.0, 1.0))
+        if point:                   # the light travels from its position p through x
+            p = lights[POSITION][l]
+            r = math.sqrt(inv_r2)
+            axis = ((x[0] - p[0]) * r, (x[1] - p[1]) * r, (x[2] - p[2]) * r)
+            # the cell's mean of 1/r^2, not its centre's: finite with the light in the cell
+            inv_r2 = mean_inverse_square(1.0 / max(r, 1e-300), cell_radius)
+        else:
+            axis = (lights[DIRECTION][l, 0], lights[DIRECTION][l, 1], lights[DIRECTION][l, 2])
+        for c in range(n_ch):
+            if point:
+                phi, phia, pdir = point_lookup(spherical[FIELDS], spherical[OFFSET][l, c], spherical[SHAPE][l],
+                                               q0, q1, q2, spherical[FULL][l])
+            else:
+                phi, phia, pdir = grid_fields(grid, l, c, corners)
+            w_dir, g_dir, w_rest, g_rest = walk_lobe_weights(phi, phia, pdir, g)
+            pd, jx, jy, jz, g_d = 0.0, 0.0, 0.0, 1.0, 0.0
+            if has_diffuse:
+                pd, jx, jy, jz, g_d = diffuse_lobe_axis(grid[PHID][l, c], grid[FLUX][l, c], corners, g,
+                                                        grid[LOBE_CAP][l])
+            k = 3 * (l * n_ch + c)
+            for kind in range(3):
+                if kind == 2:
+                    a0, a1, a2, gk, wk = jx, jy, jz, g_d, pd
+                else:
+                    a0, a1, a2 = axis
+                    gk, wk = (g_dir, w_dir * inv_r2) if kind == 0 else (g_rest, w_rest * inv_r2)
+                lobes[m, k + kind, 0] = a0
+                lobes[m, k + kind, 1] = a1
+                lobes[m, k + kind, 2] = a2
+                lobes[m, k + kind, 3] = gk
+                for colour in range(3):
+                    on = n_ch == 1 or colour == c
+                    lobes[m, k + kind, 4 + colour] = wk * power[l, colour] if on else 0.0
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     """Fill ``lobes`` float32 (M, K, 7) with the in-scattered light at the centre x of each cell
@@ -104,54 +152,11 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     its flux (diffuse_lobe_axis); a grey field's lobe carries the light's RGB power, channel c's
     only colour c. Evaluated once per cell, they serve every direction of the gather."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
-    is_point = lights[0]
-    power = lights[POWER]
     n_ch = grid[PHI].shape[1]
     has_diffuse = grid[PHID].shape[0] > 0
     cell_radius = (3.0 * voxel[0] * voxel[1] * voxel[2] / (4.0 * math.pi)) ** (1.0 / 3.0)
     for m in nb.prange(cells.shape[0]):
-        lights_ = lights
-        grid_ = grid
-        spherical_ = spherical
-        ix, iy, iz = cells[m, 0], cells[m, 1], cells[m, 2]
-        x = (origin[0] + ix * voxel[0], origin[1] + iy * voxel[1], origin[2] + iz * voxel[2])
-        g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[ix, iy, iz]
-        corners = (ix, ix, iy, iy, iz, iz, 0.0, 0.0, 0.0)
-        for l in range(is_point.shape[0]):
-            point, mu, inv_r2, q0, q1, q2 = light_geometry(lights_, spherical_, l, x, (0.0, 0.0, 1.0))
-            if point:                   # the light travels from its position p through x
-                p = lights_[POSITION][l]
-                r = math.sqrt(inv_r2)
-                axis = ((x[0] - p[0]) * r, (x[1] - p[1]) * r, (x[2] - p[2]) * r)
-                # the cell's mean of 1/r^2, not its centre's: finite with the light in the cell
-                inv_r2 = mean_inverse_square(1.0 / max(r, 1e-300), cell_radius)
-            else:
-                axis = (lights_[DIRECTION][l, 0], lights_[DIRECTION][l, 1], lights_[DIRECTION][l, 2])
-            for c in range(n_ch):
-                if point:
-                    phi, phia, pdir = point_lookup(spherical_[FIELDS], spherical_[OFFSET][l, c], spherical_[SHAPE][l],
-                                                   q0, q1, q2, spherical_[FULL][l])
-                else:
-                    phi, phia, pdir = grid_fields(grid_, l, c, corners)
-                w_dir, g_dir, w_rest, g_rest = walk_lobe_weights(phi, phia, pdir, g)
-                pd, jx, jy, jz, g_d = 0.0, 0.0, 0.0, 1.0, 0.0
-                if has_diffuse:
-                    pd, jx, jy, jz, g_d = diffuse_lobe_axis(grid_[PHID][l, c], grid_[FLUX][l, c], corners, g,
-                                                            grid_[LOBE_CAP][l])
-                k = 3 * (l * n_ch + c)
-                for kind in range(3):
-                    if kind == 2:
-                        a0, a1, a2, gk, wk = jx, jy, jz, g_d, pd
-                    else:
-                        a0, a1, a2 = axis
-                        gk, wk = (g_dir, w_dir * inv_r2) if kind == 0 else (g_rest, w_rest * inv_r2)
-                    lobes[m, k + kind, 0] = a0
-                    lobes[m, k + kind, 1] = a1
-                    lobes[m, k + kind, 2] = a2
-                    lobes[m, k + kind, 3] = gk
-                    for colour in range(3):
-                        on = n_ch == 1 or colour == c
-                        lobes[m, k + kind, 4 + colour] = wk * power[l, colour] if on else 0.0
+        cell_lobes(medium, lights, grid, spherical, cells, lobes, np.int64(m), n_ch, has_diffuse, cell_radius)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)

@@ -194,4 +194,6 @@ def densest_near_blocks(density, block, out):
                         for p in range(j_lo, j_hi + 1):
                             if v > acc[p, q]:
                                 acc[p, q] = v
-        out[b] = acc
+        for p in range(by):
+            for q in range(bz):
+                out[b, p, q] = acc[p, q]
