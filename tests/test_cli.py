@@ -325,3 +325,32 @@ def test_method_tables_round_trip(tmp_path):
     p = tmp_path / "written.toml"
     p.write_text(tomli_w.dumps(d))
     assert vars(load_scene(p).method) == vars(m.validate("m"))
+
+
+def test_a_first_compile_of_a_popvol_kernel_is_said_once():
+    """announce_compiling (what `popvol` shows on a terminal while Numba compiles): one line at
+    the first compile of one of popvol's kernels, none for other functions' compiles or for a
+    kernel already compiled."""
+    import numba
+    from numba.core import event
+    from popvol.cli import COMPILING, announce_compiling
+
+    def other(x):
+        return x * 2
+
+    def kernel(x):
+        return x + 1
+    kernel.__module__ = "popvol.kernels.example"     # where Numba sees it defined
+
+    said = []
+    listener = announce_compiling(said.append)
+    try:
+        numba.njit(other)(1)
+        assert said == []
+        fast = numba.njit(kernel)
+        fast(1)
+        fast(1)                 # compiled already
+        fast(1.5)               # a second compile (float64)
+    finally:
+        event.unregister("numba:compile", listener)
+    assert said == [COMPILING]

@@ -47,10 +47,41 @@ def _progress():
                     TimeElapsedColumn(), transient=True, disable=not sys.stderr.isatty())
 
 
+#: said once on a terminal when Numba compiles a kernel of popvol's instead of loading it
+COMPILING = ("popvol: compiling the Numba kernels for this machine (the first run only: about a minute "
+             "on 2 cores; later runs load them from Numba's cache)")
+
+
+def announce_compiling(say) -> object:
+    """Call ``say(COMPILING)`` once, when Numba first compiles one of popvol's kernels in this
+    process; loading a kernel from Numba's cache is no compile and says nothing. Without it the
+    first run's minute of compiling shows as a progress bar that stands still. Returns the
+    listener (``numba.core.event.unregister("numba:compile", listener)`` removes it)."""
+    from numba.core import event
+
+    class FirstCompile(event.Listener):
+        said = False
+
+        def on_start(self, ev):
+            func = getattr(ev.data.get("dispatcher"), "py_func", None)
+            if not self.said and getattr(func, "__module__", "").startswith("popvol."):
+                self.said = True
+                say(COMPILING)
+
+        def on_end(self, ev):
+            pass
+
+    listener = FirstCompile()
+    event.register("numba:compile", listener)
+    return listener
+
+
 @click.group()
 @click.version_option(package_name="popvol")
 def cli():
     """popvol: multiple scattering in clouds and smoke by Principal-Ordinate Propagation."""
+    if sys.stderr.isatty():              # as the progress bars: on a terminal only
+        announce_compiling(lambda line: click.echo(line, err=True))
 
 
 @cli.command()
