@@ -36,8 +36,8 @@ import math
 import numba as nb
 import numpy as np
 
-from .render import (DIRECTION, FIELDS, FLUX, FULL, LOBE_CAP, OFFSET, PHI, PHID, POSITION, POWER, SHAPE,
-                     diffuse_lobe_axis, f_hg, grid_fields, light_geometry, point_lookup, walk_lobe_weights)
+from .render import (DIRECTION, FIELDS, FLUX, FULL, LOBE_CAP, OFFSET, ON_ITS_OWN, PHI, PHID, POSITION, POWER,
+                     SHAPE, diffuse_lobe_axis, f_hg, grid_fields, light_geometry, point_lookup, walk_lobe_weights)
 
 
 @nb.njit(inline="always", cache=True)
@@ -91,8 +91,7 @@ def mean_inverse_square(r, R):
     return 3.0 / (4.0 * r * R ** 3) * (2.0 * r * R + (R * R - r * r) * log)
 
 
-# compiled on its own, as kernels/render.py's light_sample is (see there)
-@nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffuse, cell_radius):
     """Row m of ``lobes`` (:func:`emission_lobes`)."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium

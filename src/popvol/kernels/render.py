@@ -74,6 +74,15 @@ COARSE_DEPTH = 0.5
 NEAR_POINT_LIGHT = 0.125
 G_MAX = 0.9999  # |g A| at most this in f_hg
 TINY = 1e-30    # a floor for divisors that may be 0 (where the lobe's weight is 0)
+#: Numba options of a large helper called inside a parallel loop (the march, its lighting, the
+#: gather's per-cell lobes): compiled on its own and inlined by LLVM (forceinline), not into the
+#: caller's Numba IR (inline="always"), which made compiling the render kernel take about 105 s
+#: of a first run, against 21 s so; without reference counting (_nrt=False; such a helper
+#: allocates nothing): counted, its array arguments cost atomic increments at every call, and
+#: the march ran 1.7-2x slower. error_model="numpy" is what the parallel loop's body has.
+#: Images are bitwise those of the inlined march.
+ON_ITS_OWN = dict(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+
 # Positions in the bundles, for the helpers of the innermost loops (per sample, light and
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
 # names there, Numba took and dropped a reference to its arrays (atomic counts) at every sample.
@@ -349,8 +358,7 @@ def light_channel(grid, spherical, l, c, corners, geometry, d, g, walk, diffuse)
     return val
 
 
-# compiled on its own, as light_sample is (see there)
-@nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def light_in_scattering(lights, grid, spherical, l, corners, x, d, g, walk=True, diffuse=True):
     """Light l's term of L_s / sigma_s at the sample x (RGB): E_l phi_l f_hg(d_l . -d; g A_l),
     split into the lobes of docs/METHOD.md Eq. 23-24 (see :func:`light_channel`; ``walk`` and
@@ -520,13 +528,7 @@ def point_light_room(lights, x, step):
     return int(min(room, 1e9))
 
 
-# Compiled on its own and inlined by LLVM (forceinline), not into the caller's Numba IR
-# (inline="always"): Numba-level inlining of the march and its helpers into the parallel loop
-# made compiling the render kernel take about 105 s of a first run, against 21 s so. Without
-# reference counting (_nrt=False; it allocates nothing): counted, its array arguments cost
-# atomic increments at every call, and the march ran 1.7-2x slower. error_model="numpy" is
-# what the parallel loop's body has. Images are bitwise those of the inlined march.
-@nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def light_sample(lights, grid, spherical, view, x, d, corners, g, ts):
     """L_s / sigma_s at the sample x (RGB) at distance ts along the camera ray d: with a combined
     source (``view`` = (source, near), source of shape (nx, ny, nz, 3)) its trilinear value plus
@@ -568,8 +570,7 @@ def march_segments(L, T, sigma_t, ds, albedo, ls):
     return (L0, L1, L2), (T0, T1, T2)
 
 
-# compiled on its own, as light_sample is (see there)
-@nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense,
     coarse): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
