@@ -15,7 +15,7 @@ from popvol.pipeline import point_fields, solve, solve_light, voxels_seen
 from popvol.renderer import render
 from popvol.scene import Method, Scene
 from popvol.kernels.render import point_lookup
-from popvol.walk import medium_factors, split_table32
+from popvol.walk import split_table32
 
 POSITIONS = {"inside": [0.5, 0.5, 0.5], "off-centre": [0.3, 0.62, 0.45],
              "close above": [0.5, 1.2, 0.5], "far": [3.0, 0.8, 0.4]}
@@ -81,7 +81,7 @@ def _random_domain_state(dom, rng, tau):
     sigma_t, sigma_s, g = dom.resample(med)
     factors = []
     for s in dom.transfer_lengths():
-        factors += list(medium_factors(sigma_t, sigma_s, g, s, "poisson"))
+        factors += list(ref.medium_factors(sigma_t, sigma_s, g, s, "poisson"))
     Tr, Dr, Tt, Dt, Tp, Dp = factors
     R = rng.random(dom.shape).astype(np.float32)
     Ra = (R * rng.uniform(-1, 1, dom.shape)).astype(np.float32)
@@ -99,12 +99,11 @@ def faces(dom, cell_factors):
 def test_face_factors_and_direct_fluence_equal_numpy_twins(where, decay, rng):
     """kernels.spherical.face_factors (each face's transmittance and decay, the product of the
     half steps of the two cells it joins, and each cell's hand-over factor) against the cells'
-    factors of walk.medium_factors and walk.handover_factor joined by the twin that pads them
+    factors of the twins of walk.medium_factors and walk.handover_factor joined by the twin that pads them
     with their neighbours across the domain's edges (antipodes, poles, phi's wrap on a full
     sphere; nothing where a part leaves a cone), on optics drawn at random per cell (empty
     cells and g < 0 among them) so a wrong neighbour cannot hide; and
-    kernels.spherical.direct_fluence against walk.direct_fluence along the rays."""
-    from popvol.walk import direct_fluence, handover_factor
+    kernels.spherical.direct_fluence against the twin of walk.direct_fluence along the rays."""
     dom = spherical_domain(blob(n=12), np.array(POSITIONS[where]), 12)
     assert dom.full == (where == "inside")
     sigma_t = (rng.uniform(0.0, 30.0, dom.shape) * (rng.random(dom.shape) > 0.3)).astype(np.float32)
@@ -114,17 +113,17 @@ def test_face_factors_and_direct_fluence_equal_numpy_twins(where, decay, rng):
     factor = np.empty(dom.shape, np.float32)
     KS.face_factors(sigma_t, sigma_s, g, dom.params, decay == "paper", dom.full, *got, factor)
     lengths = dom.transfer_lengths()
-    (Tr, Dr), (Tt, Dt), (Tp, Dp) = (medium_factors(sigma_t, sigma_s, g, s, decay) for s in lengths)
+    (Tr, Dr), (Tt, Dt), (Tp, Dp) = (ref.medium_factors(sigma_t, sigma_s, g, s, decay) for s in lengths)
     shape = lambda a: np.broadcast_to(a, dom.shape)
     want = ref.face_factors(*(shape(a) for a in (Tr, Tt, Tp, Dr, Dt, Dp)), dom.full)
     for F, W in zip(got, want):
         np.testing.assert_allclose(F, W, rtol=1e-5, atol=1e-30)
     assert (want[2][..., 1] == 0).any() == (decay == "paper")     # g <= 0 stops the lobe
-    np.testing.assert_allclose(factor, handover_factor(sigma_t, sigma_s, g, sum(lengths) / 3.0), rtol=1e-5,
+    np.testing.assert_allclose(factor, ref.handover_factor(sigma_t, sigma_s, g, sum(lengths) / 3.0), rtol=1e-5,
                                atol=1e-7)
     out = np.empty(dom.shape, np.float32)
     KS.direct_fluence(sigma_t, dom.params, out)
-    np.testing.assert_allclose(out, direct_fluence(sigma_t, dom.dr), rtol=1e-6)
+    np.testing.assert_allclose(out, ref.direct_fluence(sigma_t, dom.dr), rtol=1e-6)
 
 
 @pytest.mark.parametrize("where", ["inside", "far", "close above"])

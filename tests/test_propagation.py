@@ -248,6 +248,54 @@ def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, ha
     assert W.sum(dtype=np.float64) == pytest.approx(pending_r + tally_r.sum() + Q_r[0].sum(), rel=1e-9)
 
 
+def _random_optics(rng, shape):
+    """sigma_t with a third of the cells empty and some purely absorbing, sigma_s <= sigma_t
+    (0 in a few non-empty cells), g in [-0.5, 0.95] (g <= 0 stops a lobe with the paper decay)."""
+    sigma_t = (rng.uniform(0.0, 40.0, shape) * (rng.random(shape) > 0.3)).astype(np.float32)
+    sigma_s = (sigma_t * rng.uniform(0.0, 1.0, shape) * (rng.random(shape) > 0.1)).astype(np.float32)
+    g = rng.uniform(-0.5, 0.95, shape).astype(np.float32)
+    return sigma_t, sigma_s, g
+
+
+@pytest.mark.parametrize("decay", ["poisson", "paper"])
+def test_cell_factor_kernels_equal_numpy_twins(decay, rng):
+    """kernels.cells (through walk.medium_factors, walk.handover_factor, walk.direct_fluence)
+    against their NumPy twins on random optics, and on 2-D optics (a point light's first
+    shell) as they are padded to 3-D."""
+    from popvol.walk import direct_fluence, handover_factor
+    sigma_t, sigma_s, g = _random_optics(rng, (9, 7, 5))
+    h = 0.07
+    for got, want in zip(medium_factors(sigma_t, sigma_s, g, h, decay),
+                         ref.medium_factors(sigma_t, sigma_s, g, h, decay)):
+        assert got.dtype == np.float32 and got.shape == sigma_t.shape
+        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-30)
+    Th2, Dh2 = medium_factors(sigma_t[0], sigma_s[0], g[0], h, decay)
+    assert Th2.shape == sigma_t.shape[1:]
+    np.testing.assert_allclose(Dh2, ref.medium_factors(sigma_t[0], sigma_s[0], g[0], h, decay)[1], rtol=1e-6)
+    np.testing.assert_allclose(handover_factor(sigma_t, sigma_s, g, h), ref.handover_factor(sigma_t, sigma_s, g, h),
+                               rtol=1e-6, atol=1e-30)
+    np.testing.assert_allclose(direct_fluence(sigma_t, h), ref.direct_fluence(sigma_t, h), rtol=1e-6, atol=1e-30)
+
+
+def test_hand_over_pending_kernel_equals_numpy_twin(rng):
+    """kernels.cells.hand_over_pending (walk.hand_over_pending) against its twin: the same Q, W
+    and Wa bit for bit (the same float64 products, rounded once), the absorbed power to
+    rounding."""
+    from popvol.walk import hand_over_pending, handover_factor
+    shape = (8, 6, 7)
+    sigma_t, sigma_s, g = _random_optics(rng, shape)
+    Th, Dh = medium_factors(sigma_t, sigma_s, g, 0.05, "poisson")
+    diffusive = handover_factor(sigma_t, sigma_s, g, 0.05)
+    W, Wa, _, _ = random_state(rng, shape)
+    Q = rng.random((2,) + shape).astype(np.float32)
+    W2, Wa2, Q2 = W.copy(), Wa.copy(), Q.copy()
+    absorbed = hand_over_pending(W, Wa, Th, Dh, diffusive, Q)
+    want = ref.hand_over_pending(W2, Wa2, Th, Dh, diffusive, Q2)
+    for a, b in ((W, W2), (Wa, Wa2), (Q, Q2)):
+        np.testing.assert_array_equal(a, b)
+    assert absorbed == pytest.approx(want, rel=1e-12)
+
+
 def test_split_table_matches_exact_hg():
     """The kernels interpolate a table; it must be as exact as the formulas (< 1e-6 in every
     share and in every share * mean cosine)."""

@@ -775,3 +775,46 @@ def skip_blocks(densest: np.ndarray, reach: int) -> np.ndarray:
         n = np.abs(occupied - b).max(axis=1).min() if len(occupied) else reach
         out[tuple(b)] = -min(n, reach)
     return out
+
+
+# -- per-cell arrays of a rectilinear domain (kernels/cells.py) ---------------------------------
+
+def medium_factors(sigma_t, sigma_s, g, h, decay):
+    """Twin of kernels.cells.medium_factors (walk.medium_factors): (Th, Dh) float32 of the
+    broadcast shape; h may be an array (a spherical cell's transfer lengths)."""
+    sigma_a = np.maximum(np.asarray(sigma_t, np.float64) - sigma_s, 0.0)
+    Th = np.exp(-0.5 * h * sigma_a)
+    x = 0.5 * h * np.asarray(sigma_s, np.float64)
+    if decay == "paper":
+        with np.errstate(divide="ignore"):
+            Dh = np.where(x > 0, np.power(np.maximum(g, 0.0), x), 1.0)
+    else:
+        Dh = np.exp(-x * (1.0 - np.asarray(g, np.float64)))
+    return Th.astype(np.float32), Dh.astype(np.float32)
+
+
+def handover_factor(sigma_t, sigma_s, g, s):
+    """Twin of kernels.cells.handover_factor (walk.handover_factor); s may be an array."""
+    sigma_t, sigma_s = np.asarray(sigma_t, np.float64), np.asarray(sigma_s, np.float64)
+    sigma_tr = np.maximum(sigma_t - sigma_s, 0.0) + sigma_s * (1.0 - np.asarray(g, np.float64))
+    return np.where((sigma_s > 0) & (sigma_t > 0), -np.expm1(-sigma_tr * s), 0.0).astype(np.float32)
+
+
+def direct_fluence(sigma_t, h):
+    """Twin of kernels.cells.direct_fluence (walk.direct_fluence): exp(-tau) along axis 0."""
+    tau_half = np.asarray(sigma_t, np.float64) * (0.5 * h)
+    tau = 2.0 * np.cumsum(tau_half, axis=0) - tau_half
+    return np.exp(-tau).astype(np.float32)
+
+
+def hand_over_pending(W, Wa, Th, Dh, diffusive, Q):
+    """Twin of kernels.cells.hand_over_pending (walk.hand_over_pending), in place on W, Wa, Q;
+    returns the power the half steps absorbed."""
+    region = diffusive > 0
+    w = np.where(region, W, 0.0).astype(np.float64)
+    th = np.asarray(Th, np.float64)
+    Q[0] += (w * th).astype(np.float32)
+    Q[1] += np.where(region, Wa.astype(np.float64) * th * Dh, 0.0).astype(np.float32)
+    W[region] = 0.0
+    Wa[region] = 0.0
+    return float(np.sum(w * (1.0 - th)))

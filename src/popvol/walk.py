@@ -23,6 +23,7 @@ import numpy as np
 from . import hg
 from .domains import check_memory
 from .kernels import binned as KB
+from .kernels import cells as KC
 from .kernels import ordinates as KO
 from .kernels import propagation as K
 from .results import Budget, WalkResult
@@ -81,45 +82,54 @@ def bin_shares(n: int = ANISOTROPY_BINS, rule: str = "moment") -> np.ndarray:
     return out
 
 
-def medium_factors(sigma_t: np.ndarray, sigma_s: np.ndarray, g: np.ndarray, h, decay: str
+def medium_factors(sigma_t: np.ndarray, sigma_s: np.ndarray, g: np.ndarray, h: float, decay: str
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Half-step transmittance Th and anisotropy decay Dh per cell, float32 (the broadcast
-    shape of the arguments; h is a step length, a number or an array).
+    shape of the arguments, at most 3-D; h is the step length, a number).
 
     Th = exp(-sigma_a h / 2)  (only absorption removes energy; scattering widens the lobe).
     Dh = g^(sigma_s h / 2)    (decay "paper", supplement Eq. 12; needs g >= 0), or
          exp(-sigma_s h (1 - g) / 2)  (decay "poisson": E[g^n] for n ~ Poisson(sigma_s h)).
+    (kernels/cells.py)
     """
-    sigma_a = np.maximum(sigma_t - sigma_s, 0.0)
-    Th = np.exp(-0.5 * h * sigma_a)
-    x = 0.5 * h * sigma_s
-    if decay == "paper":
-        with np.errstate(divide="ignore"):
-            Dh = np.where(x > 0, np.power(np.maximum(g, 0.0), x), 1.0)
-    else:
-        Dh = np.exp(-x * (1.0 - g))
-    return Th.astype(np.float32), Dh.astype(np.float32)
+    shape, (st, ss, gg) = _cells(sigma_t, sigma_s, g)
+    Th, Dh = np.empty(st.shape, np.float32), np.empty(st.shape, np.float32)
+    KC.medium_factors(st, ss, gg, float(h), decay == "paper", Th, Dh)
+    return Th.reshape(shape), Dh.reshape(shape)
 
 
-def handover_factor(sigma_t, sigma_s, g, s) -> np.ndarray:
+def handover_factor(sigma_t, sigma_s, g, s: float) -> np.ndarray:
     """float32: per cell, f = 1 - exp(-sigma_tr s) (sigma_tr = sigma_a + sigma_s (1 - g), s the
-    cell's step length, broadcastable): the share of a lobe's first moment the medium removes
+    cell's step length, a number): the share of a lobe's first moment the medium removes
     over one cell. A packet hands over when |a| < method.handover_scale * f, so the criterion
     follows the transport mean free path, not the cell count (docs/METHOD.md, "Hand-over").
-    0 outside the diffusion region (sigma_s = 0 or sigma_t = 0)."""
-    sigma_a = np.maximum(sigma_t - sigma_s, 0.0)
-    sigma_tr = sigma_a + sigma_s * (1.0 - g)
-    f = -np.expm1(-sigma_tr * s)
-    return np.where((sigma_s > 0) & (sigma_t > 0), f, 0.0).astype(np.float32)
+    0 outside the diffusion region (sigma_s = 0 or sigma_t = 0). (kernels/cells.py)"""
+    shape, (st, ss, gg) = _cells(sigma_t, sigma_s, g)
+    out = np.empty(st.shape, np.float32)
+    KC.handover_factor(st, ss, gg, float(s), out)
+    return out.reshape(shape)
 
 
 def direct_fluence(sigma_t: np.ndarray, h: float) -> np.ndarray:
     """float32 (n_d, n_u, n_v): fluence of the unscattered light at the cell centres of a
     domain whose first axis runs from the light, per unit irradiance: exp(-tau), tau = sigma_t
-    integrated from the face k = 0 to the centre (Beer-Lambert, sigma_t piecewise constant)."""
-    tau_half = np.asarray(sigma_t, np.float64) * (0.5 * h)
-    tau = 2.0 * np.cumsum(tau_half, axis=0) - tau_half
-    return np.exp(-tau).astype(np.float32)
+    integrated from the face k = 0 to the centre (Beer-Lambert, sigma_t piecewise constant;
+    kernels/cells.py)."""
+    sigma_t = np.ascontiguousarray(sigma_t, np.float32)
+    out = np.empty(sigma_t.shape, np.float32)
+    KC.direct_fluence(sigma_t, float(h), out)
+    return out
+
+
+def _cells(*arrays):
+    """(the broadcast shape of ``arrays``, each as a contiguous float32 3-D array of it, a
+    lower-dimensional shape padded with leading 1s) for the kernels of kernels/cells.py."""
+    shape = np.broadcast_shapes(*(np.shape(a) for a in arrays))
+    if len(shape) > 3:
+        raise ValueError(f"per-cell arrays of at most 3 dimensions, not {shape}")
+    cube = (1,) * (3 - len(shape)) + shape
+    return shape, tuple(np.ascontiguousarray(np.broadcast_to(np.asarray(a, np.float32), shape)).reshape(cube)
+                        for a in arrays)
 
 
 def replace_direct(result: WalkResult, direct: np.ndarray) -> None:
@@ -157,15 +167,8 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q) -> float:
     Their lobes have spread (what is left late in a walk has |a| ~ 0.1), so diffusion is where
     they would mostly have gone; with tolerance 3e-3 this moves the images of the gallery's
     scenes by relMSE <= 2e-4 from a walk run to 1e-3. W and Wa are zeroed there (in place);
-    returns the power the half steps absorbed [W]."""
-    region = diffusive > 0
-    w = np.where(region, W, 0.0).astype(np.float64)
-    th = np.asarray(Th, np.float64)
-    Q[0] += (w * th).astype(np.float32)
-    Q[1] += np.where(region, Wa.astype(np.float64) * th * Dh, 0.0).astype(np.float32)
-    W[region] = 0.0
-    Wa[region] = 0.0
-    return float(np.sum(w * (1.0 - th)))
+    returns the power the half steps absorbed [W] (kernels/cells.py)."""
+    return float(KC.hand_over_pending(W, Wa, Th, Dh, diffusive, Q))
 
 
 def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, n_cells: int,

@@ -1,0 +1,107 @@
+"""Numba kernels: the per-cell arrays of a light's rectilinear domain (n_d, n_u, n_v) that the
+walk reads and leaves, each made in one pass over the cells and written into arrays the
+caller allocates, so that a domain of millions of cells costs no temporaries (the NumPy
+expressions they replace made five to ten domain-sized float64 temporaries each).
+
+- :func:`medium_factors`: the half-step transmittance and anisotropy decay (see
+  kernels/propagation.py; supplement Sec. 1.3 and Eq. 12);
+- :func:`handover_factor`: the share of a lobe's first moment a cell removes (docs/METHOD.md,
+  "Hand-over", Eq. 17);
+- :func:`direct_fluence`: the unscattered light of a sun at the cell centres (Eq. 22);
+- :func:`hand_over_pending`: the packets still pending in the diffusion region when the walk
+  stops go to the diffusion stage.
+
+The arithmetic is float64, the arrays float32. NumPy twins: tests/twins.py (medium_factors,
+handover_factor, direct_fluence, hand_over_pending).
+"""
+import math
+
+import numba as nb
+import numpy as np
+
+from .reduction import ordered_sum
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def medium_factors(sigma_t, sigma_s, g, h, paper, Th, Dh):
+    """Th = exp(-sigma_a h / 2), sigma_a = max(sigma_t - sigma_s, 0), and Dh = g^(sigma_s h / 2)
+    (``paper``, supplement Eq. 12; g <= 0 stops the lobe: 0) or exp(-sigma_s h (1 - g) / 2)
+    (the ``poisson`` decay), per cell of float32 (n_d, n_u, n_v) sigma_t, sigma_s and g, into
+    Th and Dh of that shape; h: the step length. An empty cell has Th = Dh = 1."""
+    n0, n1, n2 = sigma_t.shape
+    for k in nb.prange(n0):
+        for i in range(n1):
+            for j in range(n2):
+                st = np.float64(sigma_t[k, i, j])
+                ss = np.float64(sigma_s[k, i, j])
+                if st == 0.0 and ss == 0.0:
+                    Th[k, i, j] = 1.0
+                    Dh[k, i, j] = 1.0
+                    continue
+                Th[k, i, j] = math.exp(-0.5 * h * max(st - ss, 0.0))
+                x = 0.5 * h * ss
+                gg = np.float64(g[k, i, j])
+                if paper:
+                    Dh[k, i, j] = math.pow(max(gg, 0.0), x) if x > 0.0 else 1.0
+                else:
+                    Dh[k, i, j] = math.exp(-x * (1.0 - gg))
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def handover_factor(sigma_t, sigma_s, g, s, out):
+    """out = 1 - exp(-sigma_tr s), sigma_tr = sigma_a + sigma_s (1 - g), per cell of float32
+    (n_d, n_u, n_v) sigma_t, sigma_s and g (s: the cell's step length); 0 outside the diffusion
+    region (sigma_s = 0 or sigma_t = 0)."""
+    n0, n1, n2 = sigma_t.shape
+    for k in nb.prange(n0):
+        for i in range(n1):
+            for j in range(n2):
+                st = np.float64(sigma_t[k, i, j])
+                ss = np.float64(sigma_s[k, i, j])
+                if ss > 0.0 and st > 0.0:
+                    sigma_tr = max(st - ss, 0.0) + ss * (1.0 - np.float64(g[k, i, j]))
+                    out[k, i, j] = -math.expm1(-sigma_tr * s)
+                else:
+                    out[k, i, j] = 0.0
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def direct_fluence(sigma_t, h, out):
+    """out = exp(-tau) per cell of float32 (n_d, n_u, n_v) sigma_t, tau = h (sum over j < k of
+    sigma_t,j + sigma_t,k / 2) from the face k = 0 to the centre of cell k (Eq. 22; sigma_t
+    piecewise constant, cells of length h along the light). Each row u is one thread's, its
+    depths summed along k in order."""
+    n0, n1, n2 = sigma_t.shape
+    for i in nb.prange(n1):
+        cum = np.zeros(n2)                  # sum over the cells before k of sigma_t h / 2
+        for k in range(n0):
+            for j in range(n2):
+                half = np.float64(sigma_t[k, i, j]) * (0.5 * h)
+                c = cum[j] + half
+                out[k, i, j] = math.exp(-(2.0 * c - half))
+                cum[j] = c
+
+
+@nb.njit(parallel=True, cache=True)
+def hand_over_pending(W, Wa, Th, Dh, diffusive, Q):
+    """When the sweeps stop, each packet (W, Wa) pending where ``diffusive`` > 0 takes its cell's
+    half step (power W Th, moment Wa Th Dh), is added to Q[0], Q[1] and is zeroed; float32
+    (n_d, n_u, n_v) arrays, Q (2, n_d, n_u, n_v). Returns the power the half steps absorbed,
+    sum of W (1 - Th), summed per slice k and then in order (kernels/reduction.py). Not
+    fastmath: Q gets the products in the twin's order."""
+    n0, n1, n2 = W.shape
+    part = np.zeros(n0)
+    for k in nb.prange(n0):
+        absorbed = 0.0
+        for i in range(n1):
+            for j in range(n2):
+                if diffusive[k, i, j] > 0.0:
+                    w = np.float64(W[k, i, j])
+                    th = np.float64(Th[k, i, j])
+                    Q[0, k, i, j] += np.float32(w * th)
+                    Q[1, k, i, j] += np.float32(np.float64(Wa[k, i, j]) * th * np.float64(Dh[k, i, j]))
+                    W[k, i, j] = 0.0
+                    Wa[k, i, j] = 0.0
+                    absorbed += w * (1.0 - th)
+        part[k] = absorbed
+    return ordered_sum(part)
