@@ -173,6 +173,10 @@ def test_bench_quick_writes_well_formed_figures(tmp_path):
     field = res["scenes"]["field_point"]
     assert field["domains"] == 1 and field["domain_shape"][2] == 2 * field["domain_shape"][1]
     assert field["cells_sent"][0] >= field["iterations"][0] > 0 and field["seconds"]["total"]["min"] > 0
+    # and under the sun: one domain, cropped to the field (a box, not a sphere), at --quick's 48 cells
+    sun = res["scenes"]["field_sun_256"]
+    assert sun["domains"] == 1 and sun["resolution"] == 48 and sun["image"] == [96, 64]
+    assert sun["cells_sent"][0] >= sun["iterations"][0] > 0 and sun["peak_rss_mb"] > 0
 
 
 def test_reference_without_mitsuba_says_how_to_install(monkeypatch):

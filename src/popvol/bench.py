@@ -11,7 +11,8 @@ compiles the kernels and fills the caches.
 - scenes, end to end, per stage (load, resample, propagate, diffusion, fields, render, total):
   the built-in demo, the WDAS cloud under the sun (default method, without the gathered last
   bounce, and the walk alone) and under sun + 8-direction sky, and the procedural field of small
-  cumulus lit by a point light inside it at 128 and 256 cells (96x64); the render stage
+  cumulus under the sun at 256 cells and lit by a point light inside it at 128 and 256 cells
+  (96x64); the render stage
   includes the gather. Beside them the sweeps' work rate: cells that sent a packet per second of the
   propagate stage (a cell that sends splits its packet six ways; the throughput rows count
   every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
@@ -72,6 +73,8 @@ SCENES = {
     "wdas_sun_sky": ("wdas_sun_sky.toml", {},
                      {"width": 160, "height": 90, "resolution": 64, "environment_resolution": 32},
                      "WDAS cloud under sun + 8-direction sky (9 domains)"),
+    "field_sun_256": ("field_sun.toml", {"resolution": 256}, {"resolution": 48},
+                      "procedural cumulus field under the sun at 256 cells"),
     "field_point": ("field_point.toml", {}, {"resolution": 32},
                     "procedural cumulus field lit by a point light inside it (full-sphere domain)"),
     "field_point_256": ("field_point.toml", {"resolution": 256}, {"resolution": 48},
