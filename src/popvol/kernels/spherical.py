@@ -107,8 +107,8 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
       T = exp(-sigma_a s / 2),  D = exp(-sigma_s s (1 - g) / 2)  (``paper``: g^(sigma_s s / 2)),
       f = 1 - exp(-sigma_tr s_mean) where sigma_s > 0 and sigma_t > 0, else 0,
 
-    s_mean the mean of the cell's three lengths (NumPy twins: walk.medium_factors and
-    walk.handover_factor per cell, tests/twins.face_factors per face). Face k of Fr lies
+    s_mean the mean of the cell's three lengths (NumPy twins: twins.medium_factors and
+    twins.handover_factor per cell, tests/twins.face_factors per face). Face k of Fr lies
     between shells k - 1 and k, face i of Ft between rows i - 1 and i, face j of Fp between
     columns j - 1 and j, so cell (k, i, j) sends out across Fr[k + 1] and in across Fr[k], and
     so on. At the domain's edges a face holds what a part crosses there: the sender's half step
@@ -165,16 +165,22 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
 def direct_fluence(sigma_t, params, out):
     """``out`` float32 (the domain's shape): r^2 phi_dir = exp(-tau) at each cell centre per
     unit intensity, tau = sigma_t integrated along the ray from the inner sphere to the centre,
-    sigma_t piecewise constant (Eq. 22; NumPy twin: walk.direct_fluence)."""
+    sigma_t piecewise constant (Eq. 22; NumPy twin: twins.direct_fluence). An empty cell takes
+    the exp(-tau) of the ray so far, kept per ray, so only cells that hold medium call exp."""
     n0, n1, n2 = sigma_t.shape
     dr = params[1]
     for i in nb.prange(n1):
         tau = np.zeros(n2)                  # along each ray of the row, to the shell's inner face
+        seen = np.ones(n2)                  # exp(-tau): what an empty cell holds, without an exp
         for k in range(n0):
             for j in range(n2):
                 half = np.float64(sigma_t[k, i, j]) * (0.5 * dr)
+                if half == 0.0:             # most of a point light's domain is empty space
+                    out[k, i, j] = seen[j]
+                    continue
                 out[k, i, j] = math.exp(-(tau[j] + half))
                 tau[j] += 2.0 * half
+                seen[j] = math.exp(-tau[j])
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
