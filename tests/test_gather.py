@@ -211,6 +211,31 @@ def test_single_scattering_solution_is_not_gathered():
                                   popvol.render(apply_overrides(scene, gather=0), single, jitter=False))
 
 
+def test_a_camera_move_gathers_from_what_the_last_frame_kept(monkeypatch):
+    """What the gather makes before the camera is known (renderer.gather_state: the transport
+    grid, the cells' lobes) is kept with the solution, so a second view of the same solution
+    makes it once, and its image is bit for bit that of a solution without the kept state; a
+    change of the light's power (Solution.relit, which shares the cache) or of the medium
+    makes it anew."""
+    made = []
+    real = renderer.gather_state
+    monkeypatch.setattr(renderer, "gather_state", lambda *a: made.append(1) or real(*a))
+    scene = small_scene(gather=16)
+    sol = popvol.solve(scene)
+    moved = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, origin=(0.4, 0.5, 2.3)))
+    popvol.render(scene, sol)
+    kept = popvol.render(moved, sol)
+    assert len(made) == 1
+    fresh = popvol.render(moved, dataclasses.replace(sol, cache={}))
+    assert len(made) == 2 and np.array_equal(kept, fresh)
+    brighter = [dataclasses.replace(scene.lights[0], irradiance=[10.0, 9.7, 9.0])]
+    relit = popvol.render(moved, sol.relit(brighter))
+    assert len(made) == 3
+    np.testing.assert_allclose(relit, 2.0 * kept, rtol=1e-5, atol=1e-7)
+    denser = dataclasses.replace(moved, medium=dataclasses.replace(moved.medium, scale=60.0))
+    assert not np.array_equal(popvol.render(denser, sol), kept) and len(made) == 4
+
+
 def test_gather_within_the_occupied_box_is_the_whole_grids(monkeypatch):
     """Transporting the light only within the box of the occupied voxels (plus GATHER_MARGIN)
     gives the light of the whole grid: nothing outside emits, and what leaves never returns."""

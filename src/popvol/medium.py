@@ -187,7 +187,10 @@ class Medium:
         if self.max_voxel_optical_depth() <= MAX_TRANSPORT_DEPTH:
             return self
         cap = MAX_TRANSPORT_DEPTH / (float(self.scale.max()) * float(self.voxel_size.min()))
-        return replace(self, density=np.minimum(self.density, np.float32(cap)))
+        # one capped array per density and cap, so that what is kept for a grid (the renderer's
+        # gather state) is found again
+        return replace(self, density=self.derived(f"transport density {cap!r}",
+                                                  lambda density: np.minimum(density, np.float32(cap))))
 
     def max_optical_depth(self) -> float:
         """Largest sigma_t times the box's diagonal: a bound on the optical depth of any path

@@ -10,7 +10,7 @@ from .kernels.gather import emission_lobes, gathered_source
 from .kernels.render import render_kernel, substeps
 from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
-from .pipeline import seen_voxels, solve, voxels_seen
+from .pipeline import medium_key, seen_voxels, solve, voxels_seen
 from .results import Solution
 from .scene import Scene
 
@@ -102,8 +102,18 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
         eye = np.asarray(cam.origin, np.float64)
         # the gather is light transport: it sees the capped density, as the walk did
         transport = med.transport_medium()
-        gathered = gather((transport.density,) + medium[1:], *only_lights(own, lights, grid, spherical), eye, seen,
-                          m.gather, gather_factor(transport, m.gather_resolution), gather_cap(cam))
+        factor = gather_factor(transport, m.gather_resolution)
+        args = ((transport.density,) + medium[1:], *only_lights(own, lights, grid, spherical), seen, factor)
+        # made once per fields, medium and lights and kept with the solution (Solution.cache):
+        # a camera move gathers again from it
+        fields = grid[:5] + spherical[:1]
+        key = ("gather", factor, medium_key(transport), tuple(map(id, fields)), own.tobytes(), lights[2].tobytes())
+        kept = solution.cache.get("gather")
+        if kept is None or kept[0] != key:
+            # holding the medium and the fields keeps the ids in the key theirs
+            kept = (key, (transport, fields), gather_state(*args))
+            solution.cache["gather"] = kept
+        gathered = gather(*args[:3], eye, seen, m.gather, factor, gather_cap(cam), state=kept[2])
         if not own.all():                 # the others' light, all of it, from their lobes
             others = lights[:2] + (lights[2] * ~own[:, None],) + lights[3:]
             in_scattering_source(medium, others, grid, spherical, eye, seen, gathered)
@@ -190,7 +200,8 @@ def gather_cap(camera) -> tuple[np.ndarray, float]:
     return -camera.basis()[0], float(min(half_diagonal + GATHER_CAP_MARGIN, np.radians(120.0)))
 
 
-def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1, cap=None) -> np.ndarray:
+def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1, cap=None,
+           state: tuple | None = None) -> np.ndarray:
     """float32 (nx, ny, nz, 3): the scattered light gathered toward the camera at ``eye`` from
     ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere.
 
@@ -200,9 +211,35 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     factor^3 voxels of that box (the medium and the fields averaged over each block's voxels) and
     read back at the voxels by trilinear interpolation between the blocks' centres (clamped to
     the edge), so the sweeps cost about factor^-3 as much. ``cap``: (axis, half-angle) of
-    gather_directions' cap, or None for directions on the whole sphere."""
-    grid, spherical = bundles
+    gather_directions' cap, or None for directions on the whole sphere. ``state``: what
+    :func:`gather_state` makes of the same medium, lights, bundles, seen and factor, if the
+    caller kept it (it does not depend on the camera)."""
+    box, seen_box, medium, needed, slot, lobes, colour = state or gather_state(medium, lights, bundles, seen, factor)
     dirs, weights = gather_directions(n_directions, *(cap or (None, 0.0)))
+    lanes = min(GATHER_LANES, n_directions)
+    out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
+    norm = np.zeros((lanes,) + needed.shape, np.float32)
+    gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm)
+    norm = norm.sum(axis=0, dtype=np.float64)
+    light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
+    light = (light * colour if colour is not None else light).astype(np.float32)
+    if factor > 1:
+        light = upsample(light, factor, seen_box)
+    else:
+        light[~seen_box] = 0.0
+    if light.shape[:3] == seen.shape:
+        return light
+    full = np.zeros(seen.shape + (3,), np.float32)
+    full[box] = light
+    return full
+
+
+def gather_state(medium, lights, bundles, seen, factor: int = 1) -> tuple:
+    """What :func:`gather` transports, made before the camera is known: (the box, the seen
+    voxels in it, the medium bundle of the transport grid, the grid's cells that are read back,
+    the lobes' row of each cell (int64, -1 where empty), the lobes (kernels.gather.emission_lobes),
+    the one colour of the light or None: :func:`one_colour`)."""
+    grid, spherical = bundles
     box = occupied_box((medium[0] > 0) | seen, GATHER_MARGIN)
     medium, grid = crop_bundles(medium, grid, box)
     seen_box = seen[box]
@@ -220,22 +257,7 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
         lights = lights[:2] + (np.ones_like(lights[2]),) + lights[3:]
     lobes = np.zeros((len(cells), 3 * len(lights[0]) * grid[0].shape[1], 7), np.float32)
     emission_lobes(medium, lights, grid, spherical, cells, lobes)
-    lanes = min(GATHER_LANES, n_directions)
-    out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
-    norm = np.zeros((lanes,) + needed.shape, np.float32)
-    gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm)
-    norm = norm.sum(axis=0, dtype=np.float64)
-    light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
-    light = (light * colour if colour is not None else light).astype(np.float32)
-    if factor > 1:
-        light = upsample(light, factor, seen_box)
-    else:
-        light[~seen_box] = 0.0
-    if light.shape[:3] == seen.shape:
-        return light
-    full = np.zeros(seen.shape + (3,), np.float32)
-    full[box] = light
-    return full
+    return box, seen_box, medium, needed, slot, lobes, colour
 
 
 def one_colour(medium, lights, grid) -> np.ndarray | None:

@@ -182,6 +182,9 @@ class Solution:
     #                          gathers no further scattering from it
     unscattered: np.ndarray | None = None   # bool (n_lights,): the light's unscattered part is
     #                          in ``direct`` (Light.unscattered; None: every light's)
+    cache: dict = field(default_factory=dict, repr=False, compare=False)   # what the renderer
+    #                          makes of these fields for any camera (renderer.gather_state), kept
+    #                          for the next frame; relit() and single_scattering() share it
 
     def __post_init__(self):
         if self.lobe_cap is None:
