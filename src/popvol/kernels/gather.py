@@ -52,25 +52,39 @@ def _voxel(a, s, p, q):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _bilinear_stencil(u, v, nu, nv):
-    """The bilinear stencil at the continuous index (u, v) of an (nu, nv) slice: (inside, i0,
-    i1, j0, j1, fu, fv); outside [-1/2, n - 1/2] the value is 0, in the outer half cell it is
-    clamped to the edge."""
-    if u < -0.5 or u > nu - 0.5 or v < -0.5 or v > nv - 0.5:
-        return False, 0, 0, 0, 0, 0.0, 0.0
+def _linear_stencil(u, nu):
+    """Along one axis of nu cells, the linear stencil at the continuous index u: (inside, i0,
+    i1, fu); outside [-1/2, n - 1/2] the value is 0, in the outer half cell it is clamped to the
+    edge. A slice's bilinear stencil is the product of its two axes' (:func:`_bilinear`)."""
+    if u < -0.5 or u > nu - 0.5:
+        return False, 0, 0, 0.0
     u = min(max(u, 0.0), nu - 1.0)
-    v = min(max(v, 0.0), nv - 1.0)
     i0 = min(int(u), max(nu - 2, 0))
-    j0 = min(int(v), max(nv - 2, 0))
-    return True, i0, min(i0 + 1, nu - 1), j0, min(j0 + 1, nv - 1), u - i0, v - j0
+    return True, i0, min(i0 + 1, nu - 1), u - i0
+
+
+@nb.njit(fastmath=True, cache=True)
+def _axis_stencils(offset, n):
+    """The linear stencils (:func:`_linear_stencil`) at u = i + offset, i = 0 .. n - 1: (inside
+    bool (n,), i0 int64 (n,), i1 int64 (n,), fu float64 (n,)). The point upstream of every cell of
+    a slice lies at the same offset, so one row of stencils per axis serves the whole sweep."""
+    inside = np.zeros(n, np.bool_)
+    i0 = np.zeros(n, np.int64)
+    i1 = np.zeros(n, np.int64)
+    f = np.zeros(n)
+    for i in range(n):
+        inside[i], i0[i], i1[i], f[i] = _linear_stencil(i + offset, n)
+    return inside, i0, i1, f
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _bilinear(buf, stencil, k, ch):
-    """buf (3, nu, nv, 3) quantity k, channel ch on the stencil of :func:`_bilinear_stencil`."""
-    inside, i0, i1, j0, j1, fu, fv = stencil
-    if not inside:
+def _bilinear(buf, su, sv, p, q, k, ch):
+    """buf (3, nu, nv, C) quantity k, channel ch at the point upstream of cell (p, q): the
+    bilinear value on the stencils su[.][p] x sv[.][q] of :func:`_axis_stencils`, 0 outside."""
+    if not (su[0][p] and sv[0][q]):
         return 0.0
+    i0, i1, fu = su[1][p], su[2][p], su[3][p]
+    j0, j1, fv = sv[1][q], sv[2][q], sv[3][q]
     return ((1 - fu) * ((1 - fv) * buf[k, i0, j0, ch] + fv * buf[k, i0, j1, ch])
             + fu * ((1 - fv) * buf[k, i1, j0, ch] + fv * buf[k, i1, j1, ch]))
 
@@ -173,18 +187,59 @@ def gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm):
     dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium: the render
     kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
     lanes = out.shape[0]
+    to_eye = eye_directions(medium, eye, needed)
+    density, albedo, g_grid = medium[0], medium[2], medium[4]
+    # what the sweeps read, in the voxels' order and with the z axis first: a direction swept
+    # across z reads its slices from these in memory order (its writes stay in place)
+    grids = (density, albedo, g_grid, slot, needed, to_eye)
+    across_z = (_z_first(density), _z_first(albedo), _z_first(g_grid), _z_first(slot), _z_first(needed),
+                _z_first(to_eye))
     for lane in nb.prange(lanes):
         for i in range(lane, dirs.shape[0], lanes):
-            _sweep(medium, lobes, slot, eye, needed, dirs[i], weights[i], out[lane], norm[lane])
+            _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
+
+
+@nb.njit(cache=True)
+def _z_first(x):
+    """A C-ordered copy of x (nx, ny, nz, ...) with its axes as (nz, nx, ny, ...)."""
+    out = np.empty((x.shape[2], x.shape[0], x.shape[1]) + x.shape[3:], x.dtype)
+    for ix in range(x.shape[0]):
+        for iy in range(x.shape[1]):
+            for iz in range(x.shape[2]):
+                out[iz, ix, iy] = x[ix, iy, iz]
+    return out
 
 
 @nb.njit(fastmath=True, cache=True)
-def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
+def eye_directions(medium, eye, needed):
+    """float64 (nx, ny, nz, 3): the unit vector from each voxel centre toward ``eye`` where
+    ``needed`` (0 elsewhere), made once for all the directions of a gather."""
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    nx, ny, nz = needed.shape
+    out = np.zeros((nx, ny, nz, 3))
+    for ix in range(nx):
+        for iy in range(ny):
+            for iz in range(nz):
+                if needed[ix, iy, iz]:
+                    ex = eye[0] - (origin[0] + ix * voxel[0])
+                    ey = eye[1] - (origin[1] + iy * voxel[1])
+                    ez = eye[2] - (origin[2] + iz * voxel[2])
+                    r = max(math.sqrt(ex * ex + ey * ey + ez * ez), 1e-300)
+                    out[ix, iy, iz, 0] = ex / r
+                    out[ix, iy, iz, 1] = ey / r
+                    out[ix, iy, iz, 2] = ez / r
+    return out
+
+
+@nb.njit(fastmath=True, cache=True)
+def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
     """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
     weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
-    times f_hg to ``norm`` (nx, ny, nz) where ``needed``."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
-    n = density.shape
+    times f_hg to ``norm`` (nx, ny, nz) where ``needed``. grids: (density, albedo, g, slot,
+    needed, to_eye (:func:`eye_directions`)); across_z: the same with the z axis first
+    (:func:`_z_first`), read by a direction swept across z."""
+    scale, albedo_rgb, voxel = medium[1], medium[3], medium[6]
+    n = grids[0].shape
     n_lobes = lobes.shape[1]
     n_out = out.shape[3]
     grey = scale[0] == scale[1] and scale[1] == scale[2]
@@ -201,6 +256,10 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
     ob = -ell * (w0, w1, w2)[b] / voxel[b]          # the upstream point, in the slice before
     oc = -ell * (w0, w1, w2)[c] / voxel[c]
     na, nb_, nc_ = n[a], n[b], n[c]
+    # reads at [s, p, q] of the z-first copies when sweeping across z, else in place
+    density, albedo, g_grid, slot, needed, to_eye = across_z if a == 2 else grids
+    su = _axis_stencils(ob, nb_)
+    sv = _axis_stencils(oc, nc_)
     # per slice and channel: L_in, the emission per unit length q and sigma_t, of the slice
     # before (prev) and this one (cur)
     prev = np.zeros((3, nb_, nc_, n_out))
@@ -209,12 +268,12 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
         s = step if wa > 0 else na - 1 - step
         for p in range(nb_):
             for q in range(nc_):
-                ix, iy, iz = _voxel(a, s, p, q)
-                rho = density[ix, iy, iz]
-                g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[ix, iy, iz]
+                ix, iy, iz = _voxel(a, s, p, q)                 # the voxel, where it is written
+                rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)     # where it is read
+                rho = density[rx, ry, rz]
                 j0 = j1 = j2 = 0.0
                 alb = 0.0
-                row = slot[ix, iy, iz]
+                row = slot[rx, ry, rz]
                 if row >= 0:
                     for k in range(n_lobes):
                         l0 = lobes[row, k, 4]
@@ -227,8 +286,7 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                         j0 += l0 * f
                         j1 += l1 * f
                         j2 += l2 * f
-                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[ix, iy, iz]
-                stencil = _bilinear_stencil(p + ob, q + oc, nb_, nc_)
+                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
                 t = wgt = 0.0
                 for ch in range(n_out):
@@ -237,10 +295,10 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                     if step == 0:
                         l_up, q_up = 0.0, qv
                     else:
-                        l_up = _bilinear(prev, stencil, 0, ch)
-                        q_up = _bilinear(prev, stencil, 1, ch)
+                        l_up = _bilinear(prev, su, sv, p, q, 0, ch)
+                        q_up = _bilinear(prev, su, sv, p, q, 1, ch)
                     if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
-                        s_up = sig if step == 0 else _bilinear(prev, stencil, 2, ch)
+                        s_up = sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch)
                         sbar = 0.5 * (s_up + sig)
                         tau = sbar * path
                         t = math.exp(-tau) if tau > 0.0 else 1.0     # no call in empty space
@@ -249,12 +307,10 @@ def _sweep(medium, lobes, slot, eye, needed, w, weight, out, norm):
                     cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
                     cur[1, p, q, ch] = qv
                     cur[2, p, q, ch] = sig
-                if needed[ix, iy, iz]:
-                    ex = eye[0] - (origin[0] + ix * voxel[0])
-                    ey = eye[1] - (origin[1] + iy * voxel[1])
-                    ez = eye[2] - (origin[2] + iz * voxel[2])
-                    r = max(math.sqrt(ex * ex + ey * ey + ez * ez), 1e-300)
-                    f = weight * f_hg((w0 * ex + w1 * ey + w2 * ez) / r, g)
+                if needed[rx, ry, rz]:
+                    g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[rx, ry, rz]
+                    f = weight * f_hg(w0 * to_eye[rx, ry, rz, 0] + w1 * to_eye[rx, ry, rz, 1]
+                                      + w2 * to_eye[rx, ry, rz, 2], g)
                     norm[ix, iy, iz] += f
                     for ch in range(n_out):
                         out[ix, iy, iz, ch] += f * cur[0, p, q, ch]
