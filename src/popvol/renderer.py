@@ -6,7 +6,7 @@ import numba
 import numpy as np
 
 from .errors import PopvolError
-from .kernels.gather import emission_lobes, gathered_source
+from .kernels.gather import emission_lobes, eye_directions, gathered_source
 from .kernels.render import render_kernel, substeps
 from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
@@ -214,12 +214,15 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     gather_directions' cap, or None for directions on the whole sphere. ``state``: what
     :func:`gather_state` makes of the same medium, lights, bundles, seen and factor, if the
     caller kept it (it does not depend on the camera)."""
-    box, seen_box, medium, needed, slot, lobes, colour = state or gather_state(medium, lights, bundles, seen, factor)
+    box, seen_box, medium, grids, across_z, lobes, colour = state or gather_state(medium, lights, bundles, seen,
+                                                                                  factor)
+    needed = grids[4]
     dirs, weights = gather_directions(n_directions, *(cap or (None, 0.0)))
     lanes = min(GATHER_LANES, n_directions)
     out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
     norm = np.zeros((lanes,) + needed.shape, np.float32)
-    gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm)
+    to_eye = eye_directions(medium, eye, needed)
+    gathered_source(medium, lobes, grids + (to_eye,), across_z + (z_first(to_eye),), dirs, weights, out, norm)
     norm = norm.sum(axis=0, dtype=np.float64)
     light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
     light = (light * colour if colour is not None else light).astype(np.float32)
@@ -236,9 +239,11 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
 
 def gather_state(medium, lights, bundles, seen, factor: int = 1) -> tuple:
     """What :func:`gather` transports, made before the camera is known: (the box, the seen
-    voxels in it, the medium bundle of the transport grid, the grid's cells that are read back,
-    the lobes' row of each cell (int64, -1 where empty), the lobes (kernels.gather.emission_lobes),
-    the one colour of the light or None: :func:`one_colour`)."""
+    voxels in it, the medium bundle of the transport grid, its grids (density, albedo, g, the
+    lobes' row of each cell (int64, -1 where empty), the cells that are read back) and the same
+    z first (:func:`z_first`), as kernels.gather.gathered_source takes them but the eye's, the
+    lobes (kernels.gather.emission_lobes), the one colour of the light or None:
+    :func:`one_colour`)."""
     grid, spherical = bundles
     box = occupied_box((medium[0] > 0) | seen, GATHER_MARGIN)
     medium, grid = crop_bundles(medium, grid, box)
@@ -257,7 +262,13 @@ def gather_state(medium, lights, bundles, seen, factor: int = 1) -> tuple:
         lights = lights[:2] + (np.ones_like(lights[2]),) + lights[3:]
     lobes = np.zeros((len(cells), 3 * len(lights[0]) * grid[0].shape[1], 7), np.float32)
     emission_lobes(medium, lights, grid, spherical, cells, lobes)
-    return box, seen_box, medium, needed, slot, lobes, colour
+    grids = (density, medium[2], medium[4], slot, needed)
+    return box, seen_box, medium, grids, tuple(map(z_first, grids)), lobes, colour
+
+
+def z_first(x: np.ndarray) -> np.ndarray:
+    """A C-ordered copy of x (nx, ny, nz, ...) with its axes as (nz, nx, ny, ...)."""
+    return np.ascontiguousarray(np.moveaxis(x, 2, 0))
 
 
 def one_colour(medium, lights, grid) -> np.ndarray | None:

@@ -173,41 +173,28 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def gathered_source(medium, lobes, slot, eye, needed, dirs, weights, out, norm):
+def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
     """Add to ``out`` float32 (lanes, nx, ny, nz, C) the gathered L_s / sigma_s toward the
-    camera at ``eye`` (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
+    camera (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
     quadrature's sum, at the voxels where ``needed``; the caller sums the lanes and divides.
     C = 3 (RGB), or C = 1 where every lobe has one colour (one light, a grey medium): then the
     lobes' first weight is transported with sigma_t's first channel, and the caller multiplies
     by the colour.
-    ``lobes``: the in-scattered light of the non-empty voxels (:func:`emission_lobes`), voxel
-    (i, j, k)'s at row slot[i, j, k] (int64, -1 where the density is 0).
+    ``lobes``: the in-scattered light of the non-empty voxels (:func:`emission_lobes`).
+    grids: (density float32, albedo float32, g float32 (the medium's grids, or (1, 1, 1)
+    constants), slot int64 (voxel (i, j, k)'s row of ``lobes``, -1 where the density is 0),
+    needed bool, to_eye float64 (nx, ny, nz, 3), the unit vector toward the camera where needed
+    (:func:`eye_directions`)); across_z: C-ordered copies of the same with the z axis first
+    ((nz, nx, ny, ...)), from which a direction swept across z reads its slices in memory order
+    (its writes stay in place).
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
     directions one after another (so the sum does not depend on the number of threads).
     dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium: the render
     kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
     lanes = out.shape[0]
-    to_eye = eye_directions(medium, eye, needed)
-    density, albedo, g_grid = medium[0], medium[2], medium[4]
-    # what the sweeps read, in the voxels' order and with the z axis first: a direction swept
-    # across z reads its slices from these in memory order (its writes stay in place)
-    grids = (density, albedo, g_grid, slot, needed, to_eye)
-    across_z = (_z_first(density), _z_first(albedo), _z_first(g_grid), _z_first(slot), _z_first(needed),
-                _z_first(to_eye))
     for lane in nb.prange(lanes):
         for i in range(lane, dirs.shape[0], lanes):
             _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
-
-
-@nb.njit(cache=True)
-def _z_first(x):
-    """A C-ordered copy of x (nx, ny, nz, ...) with its axes as (nz, nx, ny, ...)."""
-    out = np.empty((x.shape[2], x.shape[0], x.shape[1]) + x.shape[3:], x.dtype)
-    for ix in range(x.shape[0]):
-        for iy in range(x.shape[1]):
-            for iz in range(x.shape[2]):
-                out[iz, ix, iy] = x[ix, iy, iz]
-    return out
 
 
 @nb.njit(fastmath=True, cache=True)
@@ -237,7 +224,7 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
     weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
     times f_hg to ``norm`` (nx, ny, nz) where ``needed``. grids: (density, albedo, g, slot,
     needed, to_eye (:func:`eye_directions`)); across_z: the same with the z axis first
-    (:func:`_z_first`), read by a direction swept across z."""
+    read by a direction swept across z (:func:`gathered_source`)."""
     scale, albedo_rgb, voxel = medium[1], medium[3], medium[6]
     n = grids[0].shape
     n_lobes = lobes.shape[1]
