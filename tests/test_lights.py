@@ -7,6 +7,7 @@ import pytest
 from popvol import PopvolError, scene_from_dict
 from popvol.lights import LIGHTS, Light
 from popvol.pipeline import solve, solve_light
+from popvol.renderer import render
 from popvol.medium import Medium
 from popvol.method import Method
 
@@ -75,3 +76,8 @@ def test_solution_counts_every_array_and_relights():
     relit = sol.relit([l.scaled(3.0) for l in scene.lights])
     np.testing.assert_allclose(relit.irradiance, 3.0 * sol.irradiance)
     assert relit.phi is sol.phi
+    # what a render keeps with the solution (its gather state) is counted, once
+    render(scene, sol)
+    (_key, _held, state), = sol.cache.values()
+    lobes = state[5]
+    assert lobes.nbytes > 0 and relit.nbytes == sol.nbytes >= sum(a.nbytes for a in arrays) + lobes.nbytes

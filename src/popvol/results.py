@@ -183,8 +183,9 @@ class Solution:
     unscattered: np.ndarray | None = None   # bool (n_lights,): the light's unscattered part is
     #                          in ``direct`` (Light.unscattered; None: every light's)
     cache: dict = field(default_factory=dict, repr=False, compare=False)   # what the renderer
-    #                          makes of these fields for any camera (renderer.gather_state), kept
-    #                          for the next frame; relit() and single_scattering() share it
+    #                          makes of these fields for any camera, kept for the next frame:
+    #                          name -> (key, what the key's ids belong to, value), e.g.
+    #                          renderer.gather_state's; relit() and single_scattering() share it
 
     def __post_init__(self):
         if self.lobe_cap is None:
@@ -212,9 +213,22 @@ class Solution:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of every array the solution holds for rendering."""
+        """Bytes of every array the solution holds for rendering, what the renderer keeps with
+        it (``cache``) included."""
+        kept = sum(_array_bytes(value) for _key, _held, value in self.cache.values())
         return sum(a.nbytes for a in (self.phi, self.phia, self.direct, self.phid, self.flux,
-                                      self.points.fields))
+                                      self.points.fields)) + kept
 
     def stats(self) -> dict:
         return {"seconds": dict(self.seconds), "domains": [ds.stats() for ds in self.domains]}
+
+
+def _array_bytes(x) -> int:
+    """Bytes of the NumPy arrays in ``x``, a value of nested tuples, lists and dicts."""
+    if isinstance(x, np.ndarray):
+        return x.nbytes
+    if isinstance(x, dict):
+        return sum(_array_bytes(v) for v in x.values())
+    if isinstance(x, (tuple, list)):
+        return sum(_array_bytes(v) for v in x)
+    return 0
