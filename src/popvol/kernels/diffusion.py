@@ -213,12 +213,12 @@ def _gradient(m, k, i, j, axis):
 def boundary_weight(mask, out):
     """out float32 = 1 / |n|_1 of the region's smoothed surface in region cells (see
     diffusion.boundary_weight), 1 elsewhere."""
-    a = mask.astype(np.float32)
-    b = np.empty_like(a)
-    _binomial(a, b, 0)
-    _binomial(b, a, 1)
-    _binomial(a, b, 2)
-    _weights(mask, b, out)
+    src = mask.astype(np.float32)
+    dst = np.empty_like(src)
+    for axis in range(3):           # a variable axis: _binomial is compiled once, not per axis
+        _binomial(src, dst, axis)
+        src, dst = dst, src
+    _weights(mask, src, out)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
