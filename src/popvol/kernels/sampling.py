@@ -95,12 +95,34 @@ def resample(grid, inv_voxel, grid_origin, frame, dom_origin, h, shape, clamp, o
                     out[k, i, j] = trilinear(grid, x, y, z)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+#: the most fields one domain_to_world call samples (a six-ordinate walk's five)
+MAX_WORLD_FIELDS = 5
+
+
 def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, needed):
-    """Sample domain fields (a tuple of float32 (n_d, n_u, n_v) arrays) at the centres of the
-    world voxels where ``needed`` (bool (nx, ny, nz)) is set, into ``outs`` (a tuple of as many
-    (nx, ny, nz) arrays), trilinear and clamped to the edge; one set of weights serves all
-    fields. Voxels not needed are not written: allocate ``outs`` with zeros."""
+    """Sample domain fields (a tuple of float32 (n_d, n_u, n_v) arrays, at most
+    MAX_WORLD_FIELDS) at the centres of the world voxels where ``needed`` (bool (nx, ny, nz)) is
+    set, into ``outs`` (a tuple of as many C-contiguous float32 (nx, ny, nz) arrays), trilinear
+    and clamped to the edge; one set of weights serves all fields. Voxels not needed are not
+    written: allocate ``outs`` with zeros. The tuples are padded to MAX_WORLD_FIELDS for the
+    kernel (:func:`_domain_to_world`), so that it compiles once for any number of fields."""
+    n = len(fields)
+    if not 1 <= n <= MAX_WORLD_FIELDS or len(outs) != n:
+        raise ValueError(f"domain_to_world: 1 to {MAX_WORLD_FIELDS} fields and as many outputs, not {n} and {len(outs)}")
+    fields = tuple(np.ascontiguousarray(f, np.float32) for f in fields)
+    for o in outs:
+        if o.dtype != np.float32 or not o.flags.c_contiguous or not o.flags.writeable:
+            raise ValueError("domain_to_world: outputs must be writeable C-contiguous float32 arrays")
+    pad = MAX_WORLD_FIELDS - n
+    _domain_to_world(fields + fields[:1] * pad, n, np.asarray(frame, np.float64), np.asarray(dom_origin, np.float64),
+                     float(h), np.asarray(world_origin, np.float64), np.asarray(voxel, np.float64),
+                     tuple(outs) + tuple(outs[:1]) * pad, needed)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def _domain_to_world(fields, n_fields, frame, dom_origin, h, world_origin, voxel, outs, needed):
+    """:func:`domain_to_world` of the first ``n_fields`` of ``fields`` into as many ``outs``
+    (both tuples of MAX_WORLD_FIELDS arrays)."""
     nx, ny, nz = needed.shape
     s = fields[0].shape
     for x in nb.prange(nx):
@@ -114,7 +136,7 @@ def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, nee
                 corners = cell_corners((px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5,
                                        (px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5,
                                        (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5, s)
-                for m in range(len(fields)):
+                for m in range(n_fields):
                     outs[m][x, y, z] = interpolate(fields[m], corners)
 
 
