@@ -3,6 +3,8 @@ walk reads and leaves, each made in one pass over the cells and written into arr
 caller allocates, so that a domain of millions of cells costs no temporaries (the NumPy
 expressions they replace made five to ten domain-sized float64 temporaries each).
 
+- :func:`rates`: a cell's absorption and decay rates, which the others and the spherical
+  domain's faces (kernels/spherical.py) build on;
 - :func:`medium_factors`: the half-step transmittance and anisotropy decay (see
   kernels/propagation.py; supplement Sec. 1.3 and Eq. 12);
 - :func:`handover_factor`: the share of a lobe's first moment a cell removes (docs/METHOD.md,
@@ -22,47 +24,57 @@ import numpy as np
 from .reduction import ordered_sum
 
 
+#: the decay rate standing for g <= 0 with the ``paper`` decay (g^x = 0 for any x > 0)
+STOPPED = 1e30
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def rates(sigma_t, sigma_s, g, k, i, j, paper):
+    """Cell (k, i, j)'s absorption and decay rates per unit length (a, d), so that a half step
+    of length s has T = exp(-a s / 2) and D = exp(-d s / 2): a = sigma_a = max(sigma_t -
+    sigma_s, 0), d = sigma_s (1 - g) (the ``poisson`` decay: E[g^n], n ~ Poisson(sigma_s s)), or
+    with the ``paper`` decay (D = g^(sigma_s s / 2), supplement Eq. 12) d = -sigma_s ln g,
+    STOPPED for g <= 0. With the poisson decay a + d is sigma_tr, the rate at which a lobe's
+    first moment is lost. Shared by the rectilinear domains' kernels here and the spherical
+    domain's faces (kernels/spherical.py)."""
+    st = np.float64(sigma_t[k, i, j])
+    ss = np.float64(sigma_s[k, i, j])
+    if ss == 0.0:
+        return max(st, 0.0), 0.0
+    gg = np.float64(g[k, i, j])
+    if paper:
+        return max(st - ss, 0.0), (-ss * math.log(gg) if gg > 0.0 else STOPPED)
+    return max(st - ss, 0.0), ss * (1.0 - gg)
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def medium_factors(sigma_t, sigma_s, g, h, paper, Th, Dh):
-    """Th = exp(-sigma_a h / 2), sigma_a = max(sigma_t - sigma_s, 0), and Dh = g^(sigma_s h / 2)
-    (``paper``, supplement Eq. 12; g <= 0 stops the lobe: 0) or exp(-sigma_s h (1 - g) / 2)
-    (the ``poisson`` decay), per cell of float32 (n_d, n_u, n_v) sigma_t, sigma_s and g, into
-    Th and Dh of that shape; h: the step length. An empty cell has Th = Dh = 1."""
+    """Th = exp(-a h / 2) and Dh = exp(-d h / 2) per cell, (a, d) its :func:`rates` (so Dh =
+    g^(sigma_s h / 2) with the ``paper`` decay, exp(-sigma_s h (1 - g) / 2) with the
+    ``poisson`` one), of float32 (n_d, n_u, n_v) sigma_t, sigma_s and g, into Th and Dh of that
+    shape; h: the step length. A rate of 0 (an empty cell) gives 1 without an exp."""
     n0, n1, n2 = sigma_t.shape
     for k in nb.prange(n0):
         for i in range(n1):
             for j in range(n2):
-                st = np.float64(sigma_t[k, i, j])
-                ss = np.float64(sigma_s[k, i, j])
-                if st == 0.0 and ss == 0.0:
-                    Th[k, i, j] = 1.0
-                    Dh[k, i, j] = 1.0
-                    continue
-                Th[k, i, j] = math.exp(-0.5 * h * max(st - ss, 0.0))
-                x = 0.5 * h * ss
-                gg = np.float64(g[k, i, j])
-                if paper:
-                    Dh[k, i, j] = math.pow(max(gg, 0.0), x) if x > 0.0 else 1.0
-                else:
-                    Dh[k, i, j] = math.exp(-x * (1.0 - gg))
+                a, d = rates(sigma_t, sigma_s, g, k, i, j, paper)
+                Th[k, i, j] = math.exp(-0.5 * h * a) if a > 0.0 else 1.0
+                Dh[k, i, j] = math.exp(-0.5 * h * d) if d > 0.0 else 1.0
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def handover_factor(sigma_t, sigma_s, g, s, out):
-    """out = 1 - exp(-sigma_tr s), sigma_tr = sigma_a + sigma_s (1 - g), per cell of float32
-    (n_d, n_u, n_v) sigma_t, sigma_s and g (s: the cell's step length); 0 outside the diffusion
-    region (sigma_s = 0 or sigma_t = 0)."""
+    """out = 1 - exp(-sigma_tr s), sigma_tr = a + d of the poisson :func:`rates` (sigma_a +
+    sigma_s (1 - g)), per cell of float32 (n_d, n_u, n_v) sigma_t, sigma_s and g (s: the
+    cell's step length); 0 outside the diffusion region (sigma_s = 0 or sigma_t = 0)."""
     n0, n1, n2 = sigma_t.shape
     for k in nb.prange(n0):
         for i in range(n1):
             for j in range(n2):
-                st = np.float64(sigma_t[k, i, j])
-                ss = np.float64(sigma_s[k, i, j])
-                if ss > 0.0 and st > 0.0:
-                    sigma_tr = max(st - ss, 0.0) + ss * (1.0 - np.float64(g[k, i, j]))
-                    out[k, i, j] = -math.expm1(-sigma_tr * s)
-                else:
-                    out[k, i, j] = 0.0
+                out[k, i, j] = 0.0
+                if sigma_s[k, i, j] > 0.0 and sigma_t[k, i, j] > 0.0:
+                    a, d = rates(sigma_t, sigma_s, g, k, i, j, False)
+                    out[k, i, j] = -math.expm1(-(a + d) * s)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)

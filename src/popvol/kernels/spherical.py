@@ -31,6 +31,7 @@ import math
 import numba as nb
 import numpy as np
 
+from .cells import rates as cell_rates
 from .propagation import (ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap,
                           split, total_energy)
 from .sampling import trilinear, trilinear_clamped
@@ -45,35 +46,15 @@ def _local(frame, r, st, ct, sp, cp):
     return x, y, z
 
 
-#: the decay rate standing for g <= 0 with the ``paper`` decay (g^x = 0 for any x > 0)
-STOPPED = 1e30
-
-
-@nb.njit(inline="always", fastmath=True, cache=True)
-def _rates(sigma_t, sigma_s, g, k, i, j, paper):
-    """Cell (k, i, j)'s absorption and decay rates per unit length (a, d), so that a half step
-    of length s has T = exp(-a s / 2) and D = exp(-d s / 2) (walk.medium_factors):
-    a = sigma_a, d = sigma_s (1 - g), or with the ``paper`` decay (D = g^(sigma_s s / 2))
-    d = -sigma_s ln g, STOPPED for g <= 0."""
-    st = np.float64(sigma_t[k, i, j])
-    ss = np.float64(sigma_s[k, i, j])
-    if ss == 0.0:
-        return max(st, 0.0), 0.0
-    gg = np.float64(g[k, i, j])
-    if paper:
-        return max(st - ss, 0.0), (-ss * math.log(gg) if gg > 0.0 else STOPPED)
-    return max(st - ss, 0.0), ss * (1.0 - gg)
-
-
 @nb.njit(inline="always", fastmath=True, cache=True)
 def _joined(medium, k, i, j, k2, i2, j2, both):
-    """The rates (:func:`_rates`) of cell (k, i, j), plus those of cell (k2, i2, j2) if
+    """The rates (kernels.cells.rates) of cell (k, i, j), plus those of cell (k2, i2, j2) if
     ``both``: what a part crossing the face between them meets (only the first where it leaves
     the domain). medium: (sigma_t, sigma_s, g, paper)."""
     sigma_t, sigma_s, g, paper = medium
-    a, d = _rates(sigma_t, sigma_s, g, k, i, j, paper)
+    a, d = cell_rates(sigma_t, sigma_s, g, k, i, j, paper)
     if both:
-        a2, d2 = _rates(sigma_t, sigma_s, g, k2, i2, j2, paper)
+        a2, d2 = cell_rates(sigma_t, sigma_s, g, k2, i2, j2, paper)
         a, d = a + a2, d + d2
     return a, d
 
@@ -156,7 +137,7 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
             for j in range(n2):
                 f = 0.0
                 if sigma_s[k, i, j] > 0.0 and sigma_t[k, i, j] > 0.0:
-                    a, d = _rates(sigma_t, sigma_s, g, k, i, j, False)     # sigma_tr = a + d
+                    a, d = cell_rates(sigma_t, sigma_s, g, k, i, j, False)     # sigma_tr = a + d
                     f = -math.expm1(-(a + d) * s_mean)
                 handover[k, i, j] = f
 
