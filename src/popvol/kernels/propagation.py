@@ -222,6 +222,71 @@ def _add(R, Ra, k, i, j, e, ea):
     Ra[k, i, j] += ea
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, halo, handover,
+          diffusive, Q, b, lo, hi, k, i, j, tallies):
+    """Cell (k, i, j) of band b (rows lo .. hi - 1) sends what has arrived, if it exceeds w_min:
+    its half step, the hand-over or the visit to (phi, phia), then the split to its six
+    neighbours, side parts into another band parked in ``halo``. ``tallies`` = (reflected,
+    transmitted, side escaped, absorbed, cells that sent) so far; returns them updated."""
+    refl, trans, side_out, absorbed, sent = tallies
+    n0, n1, n2 = R.shape
+    w = R[k, i, j]
+    if w <= w_min:
+        return tallies
+    th = Th[k, i, j]                    # the receiver's half step ...
+    thd = th * Dh[k, i, j]
+    wa = Ra[k, i, j] * thd
+    absorbed += w * (np.float32(1.0) - th)
+    w *= th
+    R[k, i, j] = 0.0
+    Ra[k, i, j] = 0.0
+    sent += 1
+    if w <= 0.0:      # all absorbed: Th underflows to 0 where sigma_a h / 2 > ~100
+        return refl, trans, side_out, absorbed, sent
+    if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
+        return refl, trans, side_out, absorbed, sent
+    phi[k, i, j] += w * inv_area
+    phia[k, i, j] += wa * inv_area
+    if wa >= w and thd == 1.0:
+        # collimated light (a = 1) in empty space: the split sends it all to the front (front
+        # share 1, conditional mean 1), so skip the table
+        if k + 1 < n0:
+            _add(R, Ra, k + 1, i, j, w, wa)
+        else:
+            trans += w
+        return refl, trans, side_out, absorbed, sent
+    ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
+    absorbed += w * (1.0 - th)          # ... and the sender's
+    if k + 1 < n0:
+        _add(R, Ra, k + 1, i, j, ef * th, efa * thd)
+    else:
+        trans += ef * th
+    if k > 0:
+        _add(R, Ra, k - 1, i, j, eb * th, eba * thd)
+    else:
+        refl += eb * th
+    es *= th
+    esa *= thd
+    for jj in (j - 1, j + 1):           # neighbours along v: same band
+        if jj < 0 or jj >= n2:
+            if not periodic:
+                side_out += es
+                continue
+            jj = _wrap(jj, n2)
+        _add(R, Ra, k, i, jj, es, esa)
+    for side in range(2):               # neighbours along u
+        ii = i - 1 + 2 * side
+        if ii >= lo and ii < hi:
+            _add(R, Ra, k, ii, j, es, esa)
+        elif not periodic and (ii < 0 or ii >= n1):
+            side_out += es
+        else:
+            halo[b, side, 0, k, j] += es
+            halo[b, side, 1, k, j] += esa
+    return refl, trans, side_out, absorbed, sent
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
                 phia, bands, halo, tally_b, handover, diffusive, Q):
@@ -230,6 +295,13 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
     A cell sends only if its pending energy exceeds ``w_min`` (below it the energy stays pending,
     counted as in flight, and is sent once more has arrived: thresholded Gauss-Seidel, as in
     Southwell relaxation or progressive radiosity).
+
+    Rows go two at a time, the second one column behind the first: cell (i + 1, j - 1) runs
+    beside (i, j), after everything that row order puts before it (its row's cell j - 2, and
+    (i, j - 1), the row before's last deposit into it), so every cell sees the same packets in
+    the same order as row by row and the fields are bitwise the same; the two chains of
+    dependent cells overlap in the processor, 12-15 % faster on the WDAS cloud's sweeps.
+    Only the tallies are summed in another order.
 
     halo float32 (n_bands, 2, 2, n_d, n_v): [band, 0 = toward row lo - 1 | 1 = toward row hi,
     0 = energy | 1 = energy * a, k, j]. tally_b float64 (n_bands, 5): the four tallies and the
@@ -240,75 +312,28 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
         b = np.int64(bb)
         lo = bands[b]
         hi = bands[b + 1]
-        refl = 0.0
-        trans = 0.0
-        side_out = 0.0
-        absorbed = 0.0
-        sent = 0
+        first = (0.0, 0.0, 0.0, 0.0, 0)        # the tallies of the first and second row of a pair
+        second = (0.0, 0.0, 0.0, 0.0, 0)
         for step in range(n0):
             k = step if forward else n0 - 1 - step
-            for si in range(hi - lo):
+            for si in range(0, hi - lo, 2):
                 i = hi - 1 - si if flip else lo + si
-                for sj in range(n2):
-                    j = n2 - 1 - sj if flip else sj
-                    w = R[k, i, j]
-                    if w <= w_min:
-                        continue
-                    th = Th[k, i, j]                    # the receiver's half step ...
-                    thd = th * Dh[k, i, j]
-                    wa = Ra[k, i, j] * thd
-                    absorbed += w * (np.float32(1.0) - th)
-                    w *= th
-                    R[k, i, j] = 0.0
-                    Ra[k, i, j] = 0.0
-                    sent += 1
-                    if w <= 0.0:      # all absorbed: Th underflows to 0 where sigma_a h / 2 > ~100
-                        continue
-                    if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
-                        continue
-                    phi[k, i, j] += w * inv_area
-                    phia[k, i, j] += wa * inv_area
-                    if wa >= w and thd == 1.0:
-                        # collimated light (a = 1) in empty space: the split sends it all to
-                        # the front (front share 1, conditional mean 1), so skip the table
-                        if k + 1 < n0:
-                            _add(R, Ra, k + 1, i, j, w, wa)
-                        else:
-                            trans += w
-                        continue
-                    ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
-                    absorbed += w * (1.0 - th)          # ... and the sender's
-                    if k + 1 < n0:
-                        _add(R, Ra, k + 1, i, j, ef * th, efa * thd)
-                    else:
-                        trans += ef * th
-                    if k > 0:
-                        _add(R, Ra, k - 1, i, j, eb * th, eba * thd)
-                    else:
-                        refl += eb * th
-                    es *= th
-                    esa *= thd
-                    for jj in (j - 1, j + 1):           # neighbours along v: same band
-                        if jj < 0 or jj >= n2:
-                            if not periodic:
-                                side_out += es
-                                continue
-                            jj = _wrap(jj, n2)
-                        _add(R, Ra, k, i, jj, es, esa)
-                    for side in range(2):               # neighbours along u
-                        ii = i - 1 + 2 * side
-                        if ii >= lo and ii < hi:
-                            _add(R, Ra, k, ii, j, es, esa)
-                        elif not periodic and (ii < 0 or ii >= n1):
-                            side_out += es
-                        else:
-                            halo[b, side, 0, k, j] += es
-                            halo[b, side, 1, k, j] += esa
-        tally_b[b, REFLECTED] += refl
-        tally_b[b, TRANSMITTED] += trans
-        tally_b[b, SIDE_ESCAPED] += side_out
-        tally_b[b, ABSORBED] += absorbed
-        tally_b[b, 4] += sent
+                pair = si + 1 < hi - lo
+                i2 = i - 1 if flip else i + 1
+                for sj in range(n2 + 1):
+                    if sj < n2:
+                        j = n2 - 1 - sj if flip else sj
+                        first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
+                                      halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
+                    if pair and sj > 0:
+                        j = n2 - sj if flip else sj - 1
+                        second = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
+                                       halo, handover, diffusive, Q, b, lo, hi, k, i2, j, second)
+        tally_b[b, REFLECTED] += first[0] + second[0]
+        tally_b[b, TRANSMITTED] += first[1] + second[1]
+        tally_b[b, SIDE_ESCAPED] += first[2] + second[2]
+        tally_b[b, ABSORBED] += first[3] + second[3]
+        tally_b[b, 4] += first[4] + second[4]
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
