@@ -216,10 +216,12 @@ def test_binned_walk_is_linear_in_the_light(rng):
     assert np.abs(merged_apart - merged).max() > 10 * np.abs(apart - together).max()
 
 
+# shapes: one band; three bands (16, 16, 5 rows); an odd band of one column. The kernel sends a
+# band's rows in pairs, the second a column behind; the twin goes row by row
 @pytest.mark.parametrize("rule", ["moment", "paper"])
 @pytest.mark.parametrize("forward, flip", [(True, False), (False, True)])
 @pytest.mark.parametrize("periodic", [False, True])
-@pytest.mark.parametrize("shape", [(5, 6, 4), (4, 37, 5)])   # one band; three bands (16, 16, 5 rows)
+@pytest.mark.parametrize("shape", [(5, 6, 4), (4, 37, 5), (3, 7, 1)])
 @pytest.mark.parametrize("handover", [-1.0, 0.6])
 def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, handover, rng):
     W, Wa, Th, Dh = random_state(rng, shape, signed=rule == "moment")
