@@ -1,0 +1,11 @@
+"""The Numba back end (CPU): one module per stage's kernels (docs/ARCHITECTURE.md)."""
+
+#: Numba options of a large helper called inside a parallel loop (the march, its lighting, the
+#: gather's per-cell lobes, one cell's send in the walk's sweep): compiled on its own and inlined
+#: by LLVM (forceinline), not into the caller's Numba IR (inline="always"), which made compiling
+#: the render kernel take about 105 s of a first run, against 21 s so, and the sweep 34 s against
+#: 8 s; without reference counting (_nrt=False; such a helper allocates nothing): counted, its
+#: array arguments cost atomic increments at every call, and the march ran 1.7-2x slower.
+#: error_model="numpy" is what the parallel loop's body has. The output is bitwise that of the
+#: inlined helper.
+ON_ITS_OWN = dict(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)

@@ -36,7 +36,8 @@ import math
 import numba as nb
 import numpy as np
 
-from .render import (DIRECTION, FIELDS, FLUX, FULL, LOBE_CAP, OFFSET, ON_ITS_OWN, PHI, PHID, POSITION, POWER,
+from . import ON_ITS_OWN
+from .render import (DIRECTION, FIELDS, FLUX, FULL, LOBE_CAP, OFFSET, PHI, PHID, POSITION, POWER,
                      SHAPE, diffuse_lobe_axis, f_hg, grid_fields, light_geometry, point_lookup, walk_lobe_weights)
 
 

@@ -27,6 +27,7 @@ NumPy twins (exact HG splits, no table): tests/twins.py (jacobi_step, sweep, han
 import numba as nb
 import numpy as np
 
+from . import ON_ITS_OWN
 from .reduction import add_parts, ordered_sum
 
 REFLECTED, TRANSMITTED, SIDE_ESCAPED, ABSORBED = 0, 1, 2, 3
@@ -222,7 +223,7 @@ def _add(R, Ra, k, i, j, e, ea):
     Ra[k, i, j] += ea
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, halo, handover,
           diffusive, Q, b, lo, hi, k, i, j, tallies):
     """Cell (k, i, j) of band b (rows lo .. hi - 1) sends what has arrived, if it exceeds w_min:

@@ -57,6 +57,7 @@ import math
 import numba as nb
 import numpy as np
 
+from . import ON_ITS_OWN
 from .sampling import cell_corners, corner_weights, interpolate
 from .spherical import spherical_index
 
@@ -74,14 +75,6 @@ COARSE_DEPTH = 0.5
 NEAR_POINT_LIGHT = 0.125
 G_MAX = 0.9999  # |g A| at most this in f_hg
 TINY = 1e-30    # a floor for divisors that may be 0 (where the lobe's weight is 0)
-#: Numba options of a large helper called inside a parallel loop (the march, its lighting, the
-#: gather's per-cell lobes): compiled on its own and inlined by LLVM (forceinline), not into the
-#: caller's Numba IR (inline="always"), which made compiling the render kernel take about 105 s
-#: of a first run, against 21 s so; without reference counting (_nrt=False; such a helper
-#: allocates nothing): counted, its array arguments cost atomic increments at every call, and
-#: the march ran 1.7-2x slower. error_model="numpy" is what the parallel loop's body has.
-#: Images are bitwise those of the inlined march.
-ON_ITS_OWN = dict(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
 
 # Positions in the bundles, for the helpers of the innermost loops (per sample, light and
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
