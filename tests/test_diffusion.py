@@ -200,3 +200,33 @@ def test_coarsen_kernel_equals_numpy_twin(rng):
                     got = diffusion.coarsen(x, factor, how)
                     assert got.dtype == np.float64
                     np.testing.assert_allclose(got, ref.coarsen(x, factor, how), rtol=1e-12, atol=0.0)
+
+
+@pytest.mark.parametrize("shape", [(3, 5, 21), (2, 3, 8), (2, 2, 5)])
+def test_reductions_sum_in_the_order_their_code_states(shape, rng):
+    """kernels.diffusion.dot, cg_update's two sums and kernels.propagation.total_energy give
+    bit for bit the sums of tests/twins.py's lanes_sum: the order of their additions is fixed by
+    their code (eight lanes per row, rows, then slices), not chosen by the compiler. Under
+    fastmath LLVM regrouped them, and the same kernel summed differently compiled in the
+    process and loaded from Numba's cache (kernels/reduction.py). Rows of 21, 8 and 5 terms:
+    full lanes and a remainder, full lanes only, a remainder only."""
+    from popvol.kernels.propagation import total_energy
+    from twins import lanes_sum
+    a = rng.standard_normal(shape).astype(np.float32)
+    b = rng.standard_normal(shape).astype(np.float32)
+    assert K.dot(a, b) == lanes_sum(a, b)
+    assert K.dot(a.astype(np.float64), b.astype(np.float64)) == lanes_sum(a.astype(np.float64), b.astype(np.float64))
+    assert total_energy(a) == lanes_sum(a)
+    x, r, p, Ap = (rng.standard_normal(shape).astype(np.float32) for _ in range(4))
+    M = rng.uniform(0.5, 2.0, shape).astype(np.float32)
+    z = np.empty_like(r)
+    rz, rr = K.cg_update(x, r, p, Ap, M, 0.37, z)
+    assert (rz, rr) == (lanes_sum(r, z), lanes_sum(r, r))
+    # terms of magnitudes 1e-6 .. 1e6: here the order shows in the bits (one chain in index
+    # order gives another sum), and the kernels still agree with the lanes
+    wide = (rng.standard_normal((4, 6, 37)) * 10.0 ** rng.uniform(-6, 6, (4, 6, 37))).astype(np.float32)
+    one_chain = 0.0
+    for term in wide.ravel():
+        one_chain += float(term)
+    assert total_energy(wide) == lanes_sum(wide) != one_chain
+    assert K.dot(wide, np.ones_like(wide)) == lanes_sum(wide)

@@ -20,7 +20,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .reduction import ordered_sum
+from .reduction import ordered_sum, row_dot
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -85,22 +85,23 @@ def diagonal(D, sah3, mask, h, out, bw):
                     out[k, i, j] = 1.0
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=False, cache=True)
 def dot(a, b):
+    """a . b of two 3-D arrays, in float64, summed in a fixed order (kernels/reduction.py; not
+    fastmath, so that compiled and cached code agree)."""
     part = np.empty(a.shape[0])
     for kk in nb.prange(a.shape[0]):
         k = np.int64(kk)
         s = 0.0
         for i in range(a.shape[1]):
-            for j in range(a.shape[2]):
-                s += a[k, i, j] * b[k, i, j]
+            s += row_dot(a, b, k, i)
         part[k] = s
     return ordered_sum(part)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=False, cache=True)
 def cg_update(x, r, p, Ap, M, alpha, z):
-    """x += alpha p; r -= alpha Ap; z = r / M. Returns (r . z, r . r)."""
+    """x += alpha p; r -= alpha Ap; z = r / M. Returns (r . z, r . r), summed as :func:`dot`."""
     part = np.empty((2, x.shape[0]))
     for kk in nb.prange(x.shape[0]):
         k = np.int64(kk)
@@ -111,10 +112,9 @@ def cg_update(x, r, p, Ap, M, alpha, z):
                 x[k, i, j] += alpha * p[k, i, j]
                 rv = r[k, i, j] - alpha * Ap[k, i, j]
                 r[k, i, j] = rv
-                zv = rv / M[k, i, j]
-                z[k, i, j] = zv
-                rz += rv * zv
-                rr += rv * rv
+                z[k, i, j] = rv / M[k, i, j]
+            rz += row_dot(r, z, k, i)
+            rr += row_dot(r, r, k, i)
         part[0, k] = rz
         part[1, k] = rr
     return ordered_sum(part[0]), ordered_sum(part[1])

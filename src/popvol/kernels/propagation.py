@@ -28,7 +28,7 @@ import numba as nb
 import numpy as np
 
 from . import ON_ITS_OWN
-from .reduction import add_parts, ordered_sum
+from .reduction import add_parts, ordered_sum, row_sum
 
 REFLECTED, TRANSMITTED, SIDE_ESCAPED, ABSORBED = 0, 1, 2, 3
 
@@ -382,16 +382,15 @@ def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area
     return total_energy(R)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=False, cache=True)
 def total_energy(x):
     """Sum of a 3-D float32 array in float64 (parallel over the first axis; the same bits with
-    any number of threads, kernels/reduction.py)."""
+    any number of threads and in compiled or cached code, kernels/reduction.py)."""
     part = np.empty(x.shape[0])
     for kk in nb.prange(x.shape[0]):
         k = np.int64(kk)
         s = 0.0
         for i in range(x.shape[1]):
-            for j in range(x.shape[2]):
-                s += x[k, i, j]
+            s += row_sum(x, k, i)
         part[k] = s
     return ordered_sum(part)
