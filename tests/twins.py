@@ -820,23 +820,23 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q):
     return float(np.sum(w * (1.0 - th)))
 
 
-def lanes_sum(a, b=None, lanes=8):
+def lanes_sum(a, b=None):
     """Twin of kernels/reduction.py's fixed-order sums (kernels.diffusion.dot with ``b``,
     kernels.propagation.total_energy without): per slice k and row i, term j = a[k, i, j]
-    (times b[k, i, j], the product in the arrays' precision) goes to lane j mod ``lanes`` (the
-    row's last n2 mod lanes terms to lane 0), the lanes are added ((0 + 1) + (2 + 3)) + ((4 + 5)
+    (times b[k, i, j], the product in the arrays' precision) goes to lane j mod 8 (the row's
+    last n2 mod 8 terms to lane 0), the eight lanes are added ((0 + 1) + (2 + 3)) + ((4 + 5)
     + (6 + 7)), the rows in order, then the slices in order; every addition in float64 one at a
     time, as Python floats do."""
     n0, n1, n2 = a.shape
-    full = lanes * (n2 // lanes)
+    full = 8 * (n2 // 8)
     total = 0.0
     for k in range(n0):
         s = 0.0
         for i in range(n1):
-            acc = [0.0] * lanes
+            acc = [0.0] * 8
             for j in range(n2):
                 term = a[k, i, j] * b[k, i, j] if b is not None else a[k, i, j]
-                acc[j % lanes if j < full else 0] += float(term)
+                acc[j % 8 if j < full else 0] += float(term)
             s += ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
         total += s
     return total

@@ -7,15 +7,15 @@ store one partial sum per slice k (each slice summed by one thread in a fixed or
 the slices with :func:`ordered_sum`: frames are bitwise the same on a Dask worker with one
 thread as on a machine with many.
 
-They are compiled without ``fastmath``, which lets LLVM regroup a sum's terms to vectorise it:
-the same kernel then summed in one order when compiled in the process and in another when
-loaded from Numba's cache (``kernels.diffusion.dot`` on two equal float32 arrays:
-0.012734128888354344 against 0.01273412888835434), so a first run's frames could differ in the
-last bits from later ones. A row's terms go instead to LANES fixed partial sums (:func:`row_dot`,
-:func:`row_sum`), added in a fixed order: the order is in the code, not left to the compiler.
-They say ``fastmath=False`` outright: a kernel that does not set it inherits its caller's, so
-total_energy, first compiled as a callee of the (fastmath) sweep, was cached with fastmath and
-then summed differently when called from Python.
+They are compiled without ``fastmath``, which lets LLVM regroup a sum's terms to vectorise it,
+and not the same way in code compiled in the process and code loaded from Numba's cache
+(``kernels.diffusion.dot`` on two equal float32 arrays: 0.012734128888354344 against
+0.01273412888835434), so a first run's frames would differ in the last bits from later ones. A
+row's terms go instead to LANES fixed partial sums (:func:`row_dot`, :func:`row_sum`), added in
+a fixed order: the order is in the code, not left to the compiler. The kernels that sum set
+``fastmath=False`` outright: one that sets nothing inherits its caller's (Numba's
+``inherit_if_not_set``), and a sum called from a fastmath kernel would be compiled, and
+cached, with it.
 """
 import numba as nb
 
