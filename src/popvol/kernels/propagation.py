@@ -313,8 +313,10 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
         b = np.int64(bb)
         lo = bands[b]
         hi = bands[b + 1]
-        first = (0.0, 0.0, 0.0, 0.0, 0)        # the tallies of the first and second row of a pair
-        second = (0.0, 0.0, 0.0, 0.0, 0)
+        # the tallies of the first and second row of a pair; np.int64(0), not a constant 0, which
+        # Numba would type as a literal and so compile _send a second time for the first call
+        first = (0.0, 0.0, 0.0, 0.0, np.int64(0))
+        second = (0.0, 0.0, 0.0, 0.0, np.int64(0))
         for step in range(n0):
             k = step if forward else n0 - 1 - step
             for si in range(0, hi - lo, 2):
