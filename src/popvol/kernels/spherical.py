@@ -31,6 +31,7 @@ import math
 import numba as nb
 import numpy as np
 
+from . import ON_ITS_OWN
 from .cells import rates as cell_rates
 from .propagation import (ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap,
                           split, total_energy)
@@ -46,17 +47,26 @@ def _local(frame, r, st, ct, sp, cp):
     return x, y, z
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
-def _joined(medium, k, i, j, k2, i2, j2, both):
-    """The rates (kernels.cells.rates) of cell (k, i, j), plus those of cell (k2, i2, j2) if
-    ``both``: what a part crossing the face between them meets (only the first where it leaves
-    the domain). medium: (sigma_t, sigma_s, g, paper)."""
+@nb.njit(**ON_ITS_OWN)
+def _one(medium, k, i, j):
+    """The rates (kernels.cells.rates) of cell (k, i, j): what a part leaving the domain across
+    its face meets. medium: (sigma_t, sigma_s, g, paper)."""
+    sigma_t, sigma_s, g, paper = medium
+    return cell_rates(sigma_t, sigma_s, g, k, i, j, paper)
+
+
+@nb.njit(**ON_ITS_OWN)
+def _two(medium, k, i, j, k2, i2, j2):
+    """The rates of cell (k, i, j) plus those of cell (k2, i2, j2): what a part crossing the
+    face between them meets.
+
+    _one and _two are compiled on their own (kernels.ON_ITS_OWN) and called at seven faces of
+    :func:`face_factors`; inlined into its Numba IR with a flag for the second cell they made
+    it take 16 s of a first run to compile."""
     sigma_t, sigma_s, g, paper = medium
     a, d = cell_rates(sigma_t, sigma_s, g, k, i, j, paper)
-    if both:
-        a2, d2 = cell_rates(sigma_t, sigma_s, g, k2, i2, j2, paper)
-        a, d = a + a2, d + d2
-    return a, d
+    a2, d2 = cell_rates(sigma_t, sigma_s, g, k2, i2, j2, paper)
+    return a + a2, d + d2
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -106,11 +116,11 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
         for i in range(n1):                 # radial faces, between shells k - 1 and k
             for j in range(n2):
                 if k == 0:                  # the inner face of shell 0: past the light
-                    rates = _joined(m, 0, i, j, 0, n1 - 1 - i, (j + half) % n2, full)
+                    rates = _two(m, 0, i, j, 0, n1 - 1 - i, (j + half) % n2) if full else _one(m, 0, i, j)
                 elif k == n0:               # the outer sphere
-                    rates = _joined(m, k - 1, i, j, k - 1, i, j, False)
+                    rates = _one(m, k - 1, i, j)
                 else:
-                    rates = _joined(m, k - 1, i, j, k, i, j, True)
+                    rates = _two(m, k - 1, i, j, k, i, j)
                 _store(Fr, k, i, j, dr, rates)
         if k == n0:
             continue
@@ -120,18 +130,18 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
             for j in range(n2):
                 if i == 0 or i == n1:       # a pole: across it to phi + pi, or out of a cone
                     ie = 0 if i == 0 else n1 - 1
-                    rates = _joined(m, k, ie, j, k, ie, (j + half) % n2, full)
+                    rates = _two(m, k, ie, j, k, ie, (j + half) % n2) if full else _one(m, k, ie, j)
                 else:
-                    rates = _joined(m, k, i - 1, j, k, i, j, True)
+                    rates = _two(m, k, i - 1, j, k, i, j)
                 _store(Ft, k, i, j, s_t, rates)
         for i in range(n1):                 # phi faces, between columns j - 1 and j
             s_p = r * math.sin(t0 + (i + 0.5) * dt) * dp
             for j in range(n2 + 1):
                 if j == 0 or j == n2:       # wrapping in phi, or out of a cone
                     je = 0 if j == 0 else n2 - 1
-                    rates = _joined(m, k, i, je, k, i, n2 - 1 - je, full)
+                    rates = _two(m, k, i, je, k, i, n2 - 1 - je) if full else _one(m, k, i, je)
                 else:
-                    rates = _joined(m, k, i, j - 1, k, i, j, True)
+                    rates = _two(m, k, i, j - 1, k, i, j)
                 _store(Fp, k, i, j, s_p, rates)
             s_mean = (dr + s_t + s_p) / 3.0
             for j in range(n2):
