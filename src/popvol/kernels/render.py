@@ -114,7 +114,7 @@ def hash_uniform(seed, x, y, s, dim):
     return (h >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def point_lookup(fields, off, shape, q0, q1, q2, full):
     """(r^2 phi, r^2 phia, r^2 phi_dir) of a point light's spherical block (fields[:, off:], C-ordered
     ``shape``) at continuous cell index (q0, q1, q2): trilinear, clamped in r and theta,
@@ -223,7 +223,7 @@ def camera_ray(camera, u, v):
     return dx / norm, dy / norm, dz / norm
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def light_geometry(lights, spherical, l, x, d):
     """Light l seen from the sample x on the camera ray d: (is_point, mu, 1/r^2, q0, q1, q2) with
     mu = d_l . (-d) (d_l the direction the light travels: a sun's, or (x - p_l) / r from a point
@@ -312,7 +312,7 @@ def lobe_toward(pd, jx, jy, jz, d0, d1, d2, g, cap):
     return max(pd, 0.0) * f_hg(mu, g_d)
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def diffuse_lobe(phid, flux, corners, d, g, cap):
     """:func:`lobe_toward` of phid (nx, ny, nz) and flux (3, nx, ny, nz) of one light and
     channel on the medium's grid, trilinear on the stencil ``corners``."""
@@ -320,7 +320,7 @@ def diffuse_lobe(phid, flux, corners, d, g, cap):
                        interpolate(flux[2], corners), d[0], d[1], d[2], g, cap)
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
+@nb.njit(**ON_ITS_OWN)
 def grid_fields(grid, l, c, corners):
     """(phi, phia, phi_dir) of light l in channel c on the medium's grid at the stencil
     ``corners``; phia and phi_dir are not looked up (0) where phi <= 0."""
