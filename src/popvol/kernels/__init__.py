@@ -1,7 +1,8 @@
 """The Numba back end (CPU): one module per stage's kernels (docs/ARCHITECTURE.md)."""
 
-#: Numba options of a large helper called inside a parallel loop (the march, its lighting, the
-#: gather's per-cell lobes, one cell's send in the walk's sweep): compiled on its own and inlined
+#: Numba options of a large helper called inside a parallel loop (the march, its lighting and the
+#: fields' lookups it shares with the gather, the gather's per-cell lobes, one cell's send in the
+#: walk's sweep, a spherical face's rates): compiled on its own and inlined
 #: by LLVM (forceinline), not into the caller's Numba IR (inline="always"), which made compiling
 #: the render kernel take about 105 s of a first run, against 21 s so, and the sweep 34 s against
 #: 8 s; without reference counting (_nrt=False; such a helper allocates nothing): counted, its
