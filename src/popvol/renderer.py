@@ -248,7 +248,7 @@ def gather_state(medium, lights, bundles, seen, factor: int = 1) -> tuple:
     box = occupied_box((medium[0] > 0) | seen, GATHER_MARGIN)
     medium, grid = crop_bundles(medium, grid, box)
     # a copy, not a view: a view of a sub-box has Numba's 'A' layout and a view of the whole grid
-    # 'C', and every kernel that takes it was compiled once for each (10-14 s more of compile)
+    # 'C', and every kernel that takes it would be compiled once for each (about 12 s more)
     seen_box = np.ascontiguousarray(seen[box])
     if factor > 1:
         medium, grid, needed = coarse_bundles(medium, grid, seen_box, factor)

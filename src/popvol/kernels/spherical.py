@@ -60,9 +60,9 @@ def _two(medium, k, i, j, k2, i2, j2):
     """The rates of cell (k, i, j) plus those of cell (k2, i2, j2): what a part crossing the
     face between them meets.
 
-    _one and _two are compiled on their own (kernels.ON_ITS_OWN) and called at seven faces of
-    :func:`face_factors`; inlined into its Numba IR with a flag for the second cell they made
-    it take 16 s of a first run to compile."""
+    _one and _two are compiled on their own (kernels.ON_ITS_OWN): :func:`face_factors` calls
+    them at seven faces, and seven copies inlined into its Numba IR take about 16 s of a first
+    run to compile."""
     sigma_t, sigma_s, g, paper = medium
     a, d = cell_rates(sigma_t, sigma_s, g, k, i, j, paper)
     a2, d2 = cell_rates(sigma_t, sigma_s, g, k2, i2, j2, paper)
