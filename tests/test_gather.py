@@ -263,24 +263,25 @@ def test_gather_within_the_occupied_box_is_the_whole_grids(monkeypatch):
 def test_gather_state_hands_the_kernels_c_ordered_masks():
     """A compile-time guard, not a check of the light: the masks gather_state hands the gather's
     kernels are C-ordered arrays whether the occupied box crops the grid or not. A view of a
-    cropped box has Numba's 'A' layout, an uncropped one 'C', and each layout compiled
-    gathered_source, its sweep, eye_directions and upsample_blocks once more (10-14 s)."""
+    cropped box has Numba's 'A' layout, one of the whole grid 'C', and each layout compiled
+    gathered_source, its sweep, eye_directions and upsample_blocks once more (about 12 s)."""
     scene = popvol.scene_from_dict({
         "medium": {"type": "procedural", "resolution": 24, "seed": 3, "scale": 2.0, "albedo": 0.95, "g": 0.6},
         "lights": [SUN], "method": {"resolution": 16},
         "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0, "width": 24, "height": 16}})
     from popvol.medium import Medium
     med = scene.medium
-    for pad in (0, 6):                                    # the box is the whole grid; it crops
-        scene.medium = Medium(np.pad(med.density, pad), med.voxel_size, med.origin - pad * med.voxel_size,
-                              scale=med.scale, albedo=med.albedo, g=med.g)
+    # a cloud with empty space around it (the box crops the grid); a medium filling its grid
+    for density, cropped in ((np.pad(med.density, 6), True), (np.full((10, 8, 10), 0.5, np.float32), False)):
+        scene.medium = Medium(density, med.voxel_size, med.origin, scale=med.scale, albedo=med.albedo, g=med.g)
         sol = popvol.solve(scene)
         inputs = renderer.render_inputs(scene, sol)
         seen = voxels_seen(scene.medium.density)
         for factor in (1, 2):
             box, seen_box, _, grids, _, _, _ = renderer.gather_state(inputs[0], inputs[1], renderer.field_bundles(sol),
                                                                      seen, factor)
-            assert seen_box.flags.c_contiguous and grids[4].flags.c_contiguous, (pad, factor)
+            assert (seen_box.shape != seen.shape) == cropped
+            assert seen_box.flags.c_contiguous and grids[4].flags.c_contiguous, (cropped, factor)
 
 
 def test_environment_lights_are_lit_from_their_lobes():
