@@ -278,8 +278,8 @@ def test_gather_state_hands_the_kernels_c_ordered_masks():
         inputs = renderer.render_inputs(scene, sol)
         seen = voxels_seen(scene.medium.density)
         for factor in (1, 2):
-            box, seen_box, _, grids, _, _, _ = renderer.gather_state(inputs[0], inputs[1], renderer.field_bundles(sol),
-                                                                     seen, factor)
+            _, seen_box, _, grids, _, _, _ = renderer.gather_state(inputs[0], inputs[1], renderer.field_bundles(sol),
+                                                                   seen, factor)
             assert (seen_box.shape != seen.shape) == cropped
             assert seen_box.flags.c_contiguous and grids[4].flags.c_contiguous, (cropped, factor)
 
