@@ -394,7 +394,8 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
     near = NEAR_VOXELS * med.voxel_size.min()
     if combined and source is None:
         source = in_scattering_source(scene, solution)
-    edge = np.asarray(med.shape) - 0.5
+    last = np.asarray(med.shape) - 0.5
+    edge = thick_faces(med)
     n_ch = solution.phi.shape[1]
 
     def light_at(x, ts, q, g):
@@ -474,7 +475,7 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
         for j in range(k):         # a segment in an optically thick block: k parts, each sampled
             ts = t + (j + 0.5) * ds / k
             x = cam.origin + ts * d
-            q = np.clip((x - med.origin) / med.voxel_size, -0.5, edge)
+            q = np.clip((x - med.origin) / med.voxel_size, -0.5, last)
             rho = float(trilinear(med.density, q))
             if rho <= 0:
                 continue
@@ -483,12 +484,71 @@ def render_pixel(scene, solution, px, py, combined=True, source=None):
             g = float(trilinear(med.g, q)) if med.g_per_voxel else med.g
             Ls = light_at(x, ts, q, g)
             sigma_t = med.scale * rho
+            if edge:
+                Ls += edge_single_scattering(scene, solution, x, d, g, sigma_t, ds / k)
             T_seg = np.exp(-sigma_t * ds / k)
             L += np.where(sigma_t > 0, Tv * (1 - T_seg) * albedo * Ls, 0.0)
             Tv *= T_seg
             if Tv.max() < 1e-4:
                 return L
     return L + Tv * background_twin(scene, d)
+
+
+def thick_faces(medium):
+    """Whether some voxel on the grid's faces is at least EDGE_DEPTH mean free paths thick along
+    the face's normal (twin of renderer.thick_faces)."""
+    from popvol.kernels.render import EDGE_DEPTH
+    rho, sigma = medium.density, float(np.max(medium.scale))
+    return any(max(rho.take(0, axis=a).max(), rho.take(-1, axis=a).max()) * sigma * medium.voxel_size[a] >= EDGE_DEPTH
+               for a in range(3))
+
+
+def edge_single_scattering(scene, solution, x, d, g, sigma_t, ds, n_quad=4000):
+    """Twin of kernels.render.edge_single_scattering for a sample at the middle of its segment
+    of length ds. Along each axis on which x lies beyond the last voxel centres (the grid's outer
+    half cell), a sun's unscattered fluence by Beer-Lambert from the face it enters by, or from
+    the clamped value for light that leaves by it; the brightest axis at x is followed along the
+    segment, its values capped at 1 point by point and their mean weighted by the camera's
+    transmittance taken by a midpoint rule of ``n_quad`` points (the kernel's is in closed form).
+    Returns that mean minus the clamped value the fields give, times the phase and the light's
+    power (RGB (3,)); 0 where x is not beyond the centres."""
+    med = scene.medium
+    u = (x - med.origin) / med.voxel_size
+    beyond = np.maximum(-u, u - (np.asarray(med.shape) - 1.0)) * med.voxel_size   # <= 0 within
+    out = np.zeros(3)
+    if beyond.max() <= 0:
+        return out
+    outward = np.where(u < 0, -1.0, 1.0)
+    q = np.clip(u, -0.5, np.asarray(med.shape) - 0.5)
+    s = (np.arange(n_quad) + 0.5) / n_quad * ds - 0.5 * ds      # along the ray, from the sample
+    n_ch = solution.direct.shape[1]
+    for l, sun in enumerate(solution.directions):
+        if solution.is_point[l] or not solution.unscattered[l]:
+            continue
+        phase = float(hg.f_hg(-np.dot(sun, d), np.clip(g, -0.9999, 0.9999)))
+        for c in range(n_ch):
+            sig = sigma_t[c] if n_ch == 3 else sigma_t[0]
+            if sig <= 0:
+                continue
+            clamped = float(trilinear(solution.direct[l, c], q))
+
+            def along(a, depth):
+                """phi_dir at points ``depth`` beyond the centres along axis a."""
+                w = sun[a] * outward[a]                # the light's travel along the outward normal
+                with np.errstate(over="ignore"):
+                    if w < 0:                          # entering: from the face, 0.5 h - depth away
+                        return np.exp(-sig * (0.5 * med.voxel_size[a] - depth) / -w)
+                    return clamped * np.exp(-sig * depth / w)      # leaving: from the clamped value
+
+            axes = [a for a in range(3) if beyond[a] > 0 and sun[a] != 0]
+            if not axes:
+                continue
+            a = max(axes, key=lambda a: float(along(a, beyond[a])))
+            at = along(a, beyond[a] + outward[a] * d[a] * s)
+            weight = sig * np.exp(-sig * (s + 0.5 * ds))
+            mean = float(np.sum(np.minimum(at, 1.0) * weight) * ds / n_quad / -np.expm1(-sig * ds))
+            out += (mean - clamped) * phase * _power(solution, l, c, n_ch)
+    return out
 
 
 def background_twin(scene, d):

@@ -7,7 +7,7 @@ import numpy as np
 
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, eye_directions, gathered_source
-from .kernels.render import render_kernel, substeps
+from .kernels.render import EDGE_DEPTH, render_kernel, substeps
 from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import medium_key, seen_voxels, solve, voxels_seen
@@ -88,7 +88,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
               med.origin, med.voxel_size, lo, hi, blocks, BLOCK)
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
               np.ascontiguousarray(solution.irradiance, np.float64),
-              np.ascontiguousarray(solution.positions, np.float64))
+              np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_))
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
     gathering = m.gather > 0 and not solution.single and bool(solution.unscattered.any())
@@ -137,8 +137,21 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     step = float(m.step * med.voxel_size.min())
     # whether any block is dense enough that the march splits its segments (the kernel's own rule)
     dense = bool(blocks.size) and substeps(medium, float(blocks.max()), step) > 1
-    march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense, int(m.max_step))
+    march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense, int(m.max_step), thick_faces(med))
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
+
+
+def thick_faces(medium) -> bool:
+    """Whether some voxel on the grid's faces is at least kernels.render.EDGE_DEPTH mean free
+    paths thick across that face (the densest channel's sigma_t times the voxel's side along
+    the face's normal): then the march takes the suns' single scattering in the grid's outer
+    half cell by Beer-Lambert (kernels.render.edge_single_scattering, docs/METHOD.md Eq. 25d)."""
+    rho, sigma, h = medium.density, float(np.max(medium.scale)), medium.voxel_size
+    for a in range(3):
+        faces = np.take(rho, [0, rho.shape[a] - 1], axis=a)
+        if float(faces.max()) * sigma * float(h[a]) >= EDGE_DEPTH:
+            return True
+    return False
 
 
 def field_bundles(solution: Solution) -> tuple[tuple, tuple]:

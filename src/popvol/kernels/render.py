@@ -40,16 +40,19 @@ Two refinements change the samples, by the optical depth of each block: a segmen
 whose densest voxel would make it thicker than MAX_SEGMENT_DEPTH mean free paths is split into
 equal parts, each sampled; in a block so thin that n segments together are at most
 COARSE_DEPTH thick, one sample spans n segments (at most method.max_step, within the block,
-and not near a point light) (:func:`march_ray`).
+and not near a point light) (:func:`march_ray`). And where some voxel on the grid's faces is
+at least EDGE_DEPTH thick, a sample in the grid's outer half cell, where the fields are clamped
+to the outermost voxels' values, takes the suns' unscattered light there by Beer-Lambert from
+the face, averaged over its segment in closed form (:func:`edge_single_scattering`).
 
 The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` builds them):
   medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block)
-  lights     (is_point, direction, power, position)
+  lights     (is_point, direction, power, position, unscattered)
   grid       (phi, phia, direct, phid, flux, lobe_cap)      the fields on the medium's grid
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
   view       (source, near)                                 the combined source, if any
   camera     (origin, basis, tan_half, width, height)
-  march      (step, spp, seed, jitter, skip, dense, coarse)
+  march      (step, spp, seed, jitter, skip, dense, coarse, edge)
 (types in :func:`render_kernel`). NumPy twin: tests/twins.py (render_pixel).
 """
 import math
@@ -69,6 +72,10 @@ T_MIN = 1e-4    # stop marching when the view transmittance falls below this (bi
 #: (a lit skin thinner than a segment is sampled, not stepped over: docs/METHOD.md, "Rendering")
 MAX_SEGMENT_DEPTH = 2.0
 MAX_SUBSTEPS = 256      # ... into at most this many parts
+#: samples in the grid's outer half cell take the suns' unscattered light there by Beer-Lambert
+#: (edge_single_scattering) where some voxel on the grid's faces is at least this many mean free
+#: paths thick (renderer.thick_faces); below it the clamped fields' error is a few percent
+EDGE_DEPTH = 0.25
 #: one sample spans several segments (method.max_step) only where they are together at most this
 #: many mean free paths thick, and at most NEAR_POINT_LIGHT of the distance to a point light long
 COARSE_DEPTH = 0.5
@@ -79,7 +86,7 @@ TINY = 1e-30    # a floor for divisors that may be 0 (where the lobe's weight is
 # Positions in the bundles, for the helpers of the innermost loops (per sample, light and
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
 # names there, Numba took and dropped a reference to its arrays (atomic counts) at every sample.
-IS_POINT, DIRECTION, POWER, POSITION = 0, 1, 2, 3               # lights
+IS_POINT, DIRECTION, POWER, POSITION, UNSCATTERED = 0, 1, 2, 3, 4  # lights
 PHI, PHIA, DIRECT, PHID, FLUX, LOBE_CAP = 0, 1, 2, 3, 4, 5      # grid
 FIELDS, OFFSET, SHAPE, PARAMS, FRAME, FULL = 0, 1, 2, 3, 4, 5   # spherical
 
@@ -201,7 +208,7 @@ def pixel_sample(march, px, py, s):
     """Sample s of pixel (px, py): its sub-pixel offsets (jx, jy) and the offset jt of the
     march's sample points within their segments, each in [0, 1): hashed from the seed, or 1/2
     without jitter (pixel centres and segment midpoints)."""
-    step, spp, seed, jitter, skip, dense, coarse = march
+    step, spp, seed, jitter, skip, dense, coarse, edge = march
     if jitter:
         return (hash_uniform(seed, px, py, s, 0), hash_uniform(seed, px, py, s, 1),
                 hash_uniform(seed, px, py, s, 2))
@@ -229,7 +236,7 @@ def light_geometry(lights, spherical, l, x, d):
     mu = d_l . (-d) (d_l the direction the light travels: a sun's, or (x - p_l) / r from a point
     light at distance r), 1/r^2 = 1 for a sun, and a point light's continuous cell index q of x
     in its spherical domain (0 for a sun)."""
-    is_point, direction, power, position = lights
+    is_point, direction, position = lights[IS_POINT], lights[DIRECTION], lights[POSITION]
     if is_point[l]:
         fields, offset, shape, params, frame, full = spherical
         p = position[l]
@@ -548,6 +555,107 @@ def light_sample(lights, grid, spherical, view, x, d, corners, g, ts):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
+def beyond_centres(medium, x):
+    """Whether the world point x lies in the grid's outer half cell: beyond the voxel centres
+    along some axis, where the trilinear stencil is clamped."""
+    density, origin, voxel = medium[0], medium[5], medium[6]
+    s = density.shape
+    for a in range(3):
+        u = (x[a] - origin[a]) / voxel[a]
+        if u < 0.0 or u > s[a] - 1.0:
+            return True
+    return False
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _log_mean_exp(beta):
+    """ln of (1 - exp(-beta)) / beta, the mean of exp(-beta s) over s in [0, 1], for any real
+    beta without overflow (0 at beta = 0)."""
+    if abs(beta) < 1e-9:
+        return -0.5 * beta
+    if beta > 0.0:
+        return math.log(-math.expm1(-beta)) - math.log(beta)
+    return -beta + math.log(-math.expm1(beta)) - math.log(-beta)
+
+
+@nb.njit(**ON_ITS_OWN)
+def edge_single_scattering(medium, lights, grid, x, d, g, sigma_t, jt, ds):
+    """What the suns' unscattered light scattered once adds to L_s / sigma_s (RGB) at a sample x
+    in the grid's outer half cell (beyond the last voxel centres, where every field is clamped
+    to the outermost voxels' values), on a march segment of length ds sampled at offset jt
+    (docs/METHOD.md Eq. 25d); (0, 0, 0) elsewhere.
+
+    Along an axis a on which x lies beyond the centres, by ``depth`` (world units), the density
+    is the outermost voxels' (the stencil is clamped) and nothing lies outside the grid, so
+    Beer-Lambert gives a sun's unscattered fluence: light entering by that face (w = d_l . n < 0,
+    n the outward normal) has crossed sigma_t over (h_a / 2 - depth) / |w|, so phi_dir =
+    exp(-sigma_t (h_a / 2 - depth) / |w|); light leaving by it has the clamped value times
+    exp(-sigma_t depth / w). Beyond the centres along several axes (an edge or corner of the
+    grid) the light came in by one face, and the largest of those values is taken. Along the
+    camera ray phi_dir is then exp(-sigma_t kappa s) of its value at the segment's start, kappa
+    = d[a] / d_l[a] of that axis, and its mean over the segment weighted by the camera's
+    transmittance is taken in closed form,
+      phi_dir(start) sigma_t ds m(sigma_t (1 + kappa) ds) / (1 - exp(-sigma_t ds)),
+    m(b) = (1 - exp(-b)) / b, so that a lit skin far thinner than the segment is integrated,
+    not sampled. That mean replaces the clamped phi_dir the fields light the sample with
+    (light_sample): the term added is E_l (mean - clamped) f_hg(d_l . -d; g) per light with an
+    unscattered part, per channel (a grey field's one channel scaled by the light's RGB power)."""
+    density, origin, voxel = medium[0], medium[5], medium[6]
+    s = density.shape
+    u0, u1, u2 = (x[0] - origin[0]) / voxel[0], (x[1] - origin[1]) / voxel[1], (x[2] - origin[2]) / voxel[2]
+    v0 = v1 = v2 = 0.0
+    if 0.0 <= u0 <= s[0] - 1.0 and 0.0 <= u1 <= s[1] - 1.0 and 0.0 <= u2 <= s[2] - 1.0:
+        return v0, v1, v2
+    corners = cell_corners(u0, u1, u2, s)
+    is_point, direction, power, unscattered = lights[IS_POINT], lights[DIRECTION], lights[POWER], lights[UNSCATTERED]
+    direct = grid[DIRECT]
+    n_ch = direct.shape[1]
+    for l in range(is_point.shape[0]):
+        if is_point[l] or not unscattered[l]:
+            continue
+        mu = -(direction[l, 0] * d[0] + direction[l, 1] * d[1] + direction[l, 2] * d[2])
+        f = f_hg(mu, _clamp_g(g))
+        for c in range(n_ch):
+            sig = sigma_t[c] if n_ch == 3 else sigma_t[0]
+            if sig <= 0.0:                      # a channel the medium does not scatter
+                continue
+            clamped = interpolate(direct[l, c], corners)
+            ln_x = -1e300                       # ln phi_dir at x, and kappa, of the brightest axis
+            kappa = 0.0
+            for a in range(3):
+                u = u0 if a == 0 else (u1 if a == 1 else u2)
+                outward = -1.0 if u < 0.0 else 1.0
+                depth = (-u if u < 0.0 else u - (s[a] - 1.0)) * voxel[a]
+                w = direction[l, a] * outward   # the light's travel along the outward normal
+                if depth <= 0.0 or w == 0.0:
+                    continue
+                if w < 0.0:
+                    ln_a = -sig * (0.5 * voxel[a] - depth) / -w
+                else:
+                    ln_a = math.log(max(clamped, 1e-300)) - sig * depth / w
+                if ln_a > ln_x:
+                    ln_x = ln_a
+                    kappa = d[a] / direction[l, a]
+            if ln_x == -1e300:
+                continue
+            ln_start = min(ln_x + sig * kappa * jt * ds, 0.0)   # exp(-tau) with tau >= 0
+            ln_mean = (ln_start + math.log(sig * ds) + _log_mean_exp(sig * (1.0 + kappa) * ds)
+                       - math.log(-math.expm1(-sig * ds)))
+            v = (math.exp(min(ln_mean, 0.0)) - clamped) * f
+            if n_ch == 1:
+                v0 += v * power[l, 0]
+                v1 += v * power[l, 1]
+                v2 += v * power[l, 2]
+            elif c == 0:
+                v0 += v * power[l, 0]
+            elif c == 1:
+                v1 += v * power[l, 1]
+            else:
+                v2 += v * power[l, 2]
+    return v0, v1, v2
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
 def march_segments(L, T, sigma_t, ds, albedo, ls):
     """:func:`march_segment` in the three channels (L, T, sigma_t, albedo, ls: 3-tuples); a grey
     medium's segment takes one exponential."""
@@ -566,7 +674,7 @@ def march_segments(L, T, sigma_t, ds, albedo, ls):
 @nb.njit(**ON_ITS_OWN)
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense,
-    coarse): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
+    coarse, edge): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
     step] (the last one cut at t1), the optics and fields taken at offset jt within each.
     Returns (L0, L1, L2, T0, T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt
     (docs/METHOD.md Eq. 24), and the view transmittance T_v at the exit, 0 once it fell below
@@ -581,8 +689,11 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     :func:`coarse_factor`, :func:`point_light_room`; decided at the segment's start, which must
     lie in that block), sampled at offset jt within it. With ``skip``, a sample in an empty
     block jumps to the first sample past the empty blocks around it that the grid vouches for:
-    their density is 0, so they add nothing, and the samples taken are the same."""
-    t0, t1, step, jt, skip, dense, coarse = segments
+    their density is 0, so they add nothing, and the samples taken are the same. With ``edge``
+    (some voxel on the grid's faces is at least EDGE_DEPTH thick), a sample in the grid's outer
+    half cell adds what the clamped fields miss of the suns' single scattering there
+    (:func:`edge_single_scattering`)."""
+    t0, t1, step, jt, skip, dense, coarse, edge = segments
     scale = medium[1]
     sigma_max = max(scale[0], scale[1], scale[2])
     L = (0.0, 0.0, 0.0)
@@ -630,6 +741,9 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
             if rho <= 0.0:
                 continue
             ls = light_sample(lights, grid, spherical, view, x, d, corners, g, ts)
+            if edge and beyond_centres(medium, x):
+                e0, e1, e2 = edge_single_scattering(medium, lights, grid, x, d, g, sigma_t, jt, ds / k)
+                ls = (ls[0] + e0, ls[1] + e1, ls[2] + e2)
             L, T = march_segments(L, T, sigma_t, ds / k, albedo, ls)
             if max(T[0], T[1], T[2]) < T_MIN:
                 return L[0], L[1], L[2], 0.0, 0.0, 0.0
@@ -650,7 +764,8 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         to the nearest non-empty one (renderer.skip_blocks; shape (0, 0, 0): no grid); block int.
     lights: is_point bool (n_lights,); direction float64 (n_lights, 3), the direction a sun's
         light travels; power float64 (n_lights, 3), RGB irradiance or intensity; position
-        float64 (n_lights, 3), a point light's.
+        float64 (n_lights, 3), a point light's; unscattered bool (n_lights,), whether the
+        light's unscattered part is in ``direct`` (environment lights have none).
     grid: phi, phia, direct float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit power
         (direct: the unscattered part of phi; all 0 for point lights); phid, flux: the diffuse
         lobe's fluence (n_lights, n_channels, ...) and world flux vector (n_lights, n_channels,
@@ -669,28 +784,31 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         along-ray offsets (False: pixel centres and segment midpoints, for tests); skip: jump
         over empty blocks; dense: whether a segment of ``step`` is optically thicker than
         MAX_SEGMENT_DEPTH in some block (march_ray splits those); coarse: the most steps one
-        sample spans in thin blocks (1: every segment one step; method.max_step).
+        sample spans in thin blocks (1: every segment one step; method.max_step); edge: whether
+        some voxel on the grid's faces is at least EDGE_DEPTH mean free paths thick, so that
+        samples in the grid's outer half cell take the suns' single scattering there exactly
+        (edge_single_scattering).
     background: float32 (1, 1, 3) (a constant) or (H, 2H, 3) (a lat-long environment map, see
         background_radiance).
     """
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
-    is_point, direction, power, position = lights
+    is_point, direction, power, position, unscattered = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
     source, near = view
     o, basis, tan_half, width, height = camera
-    step, spp, seed, jitter, skip, dense, coarse = march
+    step, spp, seed, jitter, skip, dense, coarse, edge = march
     for py in nb.prange(height):
         # The bundles are rebuilt here from their arrays, so that the helpers read the arrays
         # themselves: with the bundles as passed in, the march took and dropped references to
         # their arrays (atomic counts) at every sample, about 1.2x slower.
         medium_ = (density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block)
-        lights_ = (is_point, direction, power, position)
+        lights_ = (is_point, direction, power, position, unscattered)
         grid_ = (phi, phia, direct, phid, flux, lobe_cap)
         spherical_ = (fields, offset, shape, params, frame, full)
         view_ = (source, near)
         camera_ = (o, basis, tan_half, width, height)
-        march_ = (step, spp, seed, jitter, skip, dense, coarse)
+        march_ = (step, spp, seed, jitter, skip, dense, coarse, edge)
         for px in range(width):
             acc0 = acc1 = acc2 = 0.0
             for s in range(spp):
@@ -698,7 +816,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
                 d = camera_ray(camera_, px + jx, py + jy)
                 t0, t1 = ray_box(o, d, lo, hi)
                 L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
-                                                   (t0, t1, step, jt, skip, dense, coarse))
+                                                   (t0, t1, step, jt, skip, dense, coarse, edge))
                 b0, b1, b2 = background_radiance(background, d)
                 acc0 += L0 + T0 * b0
                 acc1 += L1 + T1 * b1

@@ -32,7 +32,7 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
     consecutive voxels overlap in the pipeline. The view direction is recomputed per light,
     which costs less than keeping the row's directions in a buffer."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
-    is_point, direction, power, position = lights
+    is_point, direction, power, position, unscattered = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
     nx, ny, nz = needed.shape
     n_ch = phi.shape[1]
