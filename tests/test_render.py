@@ -187,13 +187,18 @@ def test_render_kernel_equals_numpy_twin(isotropic, optics, combined):
     sol = solve(scene)
     if isotropic == "diffusion":
         assert sol.phid.max() > 0 and np.abs(sol.flux).max() > 0
+    assert_kernel_equals_twin(scene, sol, combined, rtol=5e-4)
+
+
+def assert_kernel_equals_twin(scene, sol, combined, rtol):
+    """Every pixel of the float32 kernel's image (pixel centres, no jitter) against the float64
+    twin's (twins.render_pixel)."""
     img = render(scene, sol, jitter=False, combined=combined)
     source = ref.in_scattering_source(scene, sol) if combined else None
     for py in range(scene.camera.height):
         for px in range(scene.camera.width):
-            # float32 kernel against the float64 twin
             np.testing.assert_allclose(img[py, px], ref.render_pixel(scene, sol, px, py, combined, source),
-                                       rtol=5e-4, atol=1e-6)
+                                       rtol=rtol, atol=1e-6)
 
 
 def test_jitter_is_deterministic_and_unbiased():
@@ -500,15 +505,9 @@ def test_single_scattering_of_a_dense_cube_on_the_grid_edge_is_beer_lambert(tau_
 def test_edge_single_scattering_kernel_equals_numpy_twin(combined):
     """The dense cube at 10 mean free paths per voxel, the whole image (walk and diffusion lobes
     too): the kernel's closed-form mean over each segment against the twin's midpoint rule of
-    4000 points (twins.edge_single_scattering); the correction is most of the lit faces' light."""
+    4000 points (twins.edge_single_scattering)."""
     scene = dense_cube_scene(10.0)
-    sol = solve(scene)
-    img = render(scene, sol, jitter=False, combined=combined)
-    source = ref.in_scattering_source(scene, sol) if combined else None
-    for py in range(scene.camera.height):
-        for px in range(scene.camera.width):
-            np.testing.assert_allclose(img[py, px], ref.render_pixel(scene, sol, px, py, combined, source),
-                                       rtol=1e-3, atol=1e-6)
+    assert_kernel_equals_twin(scene, solve(scene), combined, rtol=1e-3)
 
 
 def test_thick_faces_decide_the_edge_correction():
