@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 from brute import density_sampler, view_march
+from slab import cube_single_scattering, dense_cube_scene
 
 from popvol import hg, metrics
 from popvol.camera import Camera
@@ -434,51 +435,6 @@ def test_blocks_hold_the_largest_density_near_them(rng):
     assert set(zip(*np.nonzero(densest_in_blocks(rho, 8) > 0))) == {(2, 1, 0), (2, 1, 1), (2, 2, 0), (2, 2, 1)}
 
 
-def dense_cube_scene(tau_voxel, light=None, n=8):
-    """A cube of unit density filling its n^3 grid, ``tau_voxel`` mean free paths per voxel, so
-    its faces are the grid's own edges, lit by a sun through three of them and seen from a
-    corner (three faces show: two lit, one that the light leaves by)."""
-    med = Medium(np.ones((n, n, n), np.float32), 1.0 / n, np.full(3, 0.5 / n), scale=tau_voxel * n, albedo=0.9,
-                 g=0.5, source="cube")
-    cam = Camera([1.9, 1.6, 2.4], [0.5, 0.5, 0.5], [0, 1, 0], 40.0, 24, 20)
-    light = light or DirectionalLight([-0.3, -0.8, -0.5], [1.0, 0.8, 0.6])
-    return Scene(med, [light], cam, np.zeros(3), Method(resolution=16, tolerance=1e-6, gather=0))
-
-
-def cube_single_scattering(scene, n_tau=20000):
-    """The single scattering of a uniform cube at the pixel centres, independently of popvol's
-    fields: L = int exp(-tau_v) Lambda E f_hg(mu; g) exp(-sigma_t s(x)) dtau_v along the camera
-    ray, s(x) the distance from x back to the cube's surface along the light (its unscattered
-    light by Beer-Lambert), by a midpoint rule in the camera's optical depth over its first 60
-    mean free paths."""
-    med, light, cam = scene.medium, scene.lights[0], scene.camera
-    lo, hi = med.bounds
-    fwd, right, up = cam.basis()
-    tan_half = np.tan(np.radians(cam.fov) / 2)
-    sigma = float(med.scale[0])
-    back = -light.direction
-    out = np.zeros((cam.height, cam.width, 3))
-    for py in range(cam.height):
-        for px in range(cam.width):
-            sx = (2 * (px + 0.5) / cam.width - 1) * tan_half * cam.width / cam.height
-            sy = (1 - 2 * (py + 0.5) / cam.height) * tan_half
-            d = fwd + sx * right + sy * up
-            d /= np.linalg.norm(d)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ta, tb = (lo - cam.origin) / d, (hi - cam.origin) / d
-            t0, t1 = max(0.0, np.nanmax(np.minimum(ta, tb))), np.nanmin(np.maximum(ta, tb))
-            if t1 <= t0:
-                continue
-            tau_max = min(sigma * (t1 - t0), 60.0)
-            tau = (np.arange(n_tau) + 0.5) / n_tau * tau_max
-            x = cam.origin + (t0 + tau[:, None] / sigma) * d
-            with np.errstate(divide="ignore"):
-                s = np.min(np.where(back > 0, (hi - x) / back, np.where(back < 0, (lo - x) / back, np.inf)), axis=1)
-            out[py, px] = (np.sum(np.exp(-tau - sigma * s)) * tau_max / n_tau * med.albedo[0]
-                           * hg.f_hg(-(d @ light.direction), med.g) * light.irradiance)
-    return out
-
-
 @pytest.mark.parametrize("tau_voxel, mean_tol", [(1.0, 0.06), (10.0, 0.01), (1e4, 0.01)])
 def test_single_scattering_of_a_dense_cube_on_the_grid_edge_is_beer_lambert(tau_voxel, mean_tol):
     """A cube whose faces are the grid's edges: the fields there are clamped to the outermost
@@ -501,12 +457,15 @@ def test_single_scattering_of_a_dense_cube_on_the_grid_edge_is_beer_lambert(tau_
         assert np.mean(np.abs(ratio - 1) < 0.01) >= 0.95
 
 
-@pytest.mark.parametrize("combined", [True, False])
-def test_edge_single_scattering_kernel_equals_numpy_twin(combined):
-    """The dense cube at 10 mean free paths per voxel, the whole image (walk and diffusion lobes
-    too): the kernel's closed-form mean over each segment against the twin's midpoint rule of
-    4000 points (twins.edge_single_scattering)."""
-    scene = dense_cube_scene(10.0)
+@pytest.mark.parametrize("tau_voxel, towards, combined", [(10.0, False, True), (10.0, False, False),
+                                                          (0.5, True, True)])
+def test_edge_single_scattering_kernel_equals_numpy_twin(tau_voxel, towards, combined):
+    """The dense cube, the whole image (walk and diffusion lobes too): the kernel's closed-form
+    mean over each segment against the twin's midpoint rule of 4000 points
+    (twins.edge_single_scattering); lit through the faces the camera sees, or (``towards``)
+    through the others, so that its light leaves by the faces in view."""
+    light = DirectionalLight([0.3, 0.8, 0.5], [1.0, 0.8, 0.6]) if towards else None
+    scene = dense_cube_scene(tau_voxel, light)
     assert_kernel_equals_twin(scene, solve(scene), combined, rtol=1e-3)
 
 

@@ -507,11 +507,11 @@ def edge_single_scattering(scene, solution, x, d, g, sigma_t, ds, n_quad=4000):
     """Twin of kernels.render.edge_single_scattering for a sample at the middle of its segment
     of length ds. Along each axis on which x lies beyond the last voxel centres (the grid's outer
     half cell), a sun's unscattered fluence by Beer-Lambert from the face it enters by, or from
-    the clamped value for light that leaves by it; the brightest axis at x is followed along the
-    segment, its values capped at 1 point by point and their mean weighted by the camera's
-    transmittance taken by a midpoint rule of ``n_quad`` points (the kernel's is in closed form).
-    Returns that mean minus the clamped value the fields give, times the phase and the light's
-    power (RGB (3,)); 0 where x is not beyond the centres."""
+    the clamped value for light that leaves by it, followed along the segment, its values capped
+    at 1 point by point and their mean weighted by the camera's transmittance taken by a
+    midpoint rule of ``n_quad`` points (the kernel's is in closed form); the largest of the axes'
+    means, minus the clamped value the fields give, times the phase and the light's power (RGB
+    (3,)); 0 where x is not beyond the centres."""
     med = scene.medium
     u = (x - med.origin) / med.voxel_size
     beyond = np.maximum(-u, u - (np.asarray(med.shape) - 1.0)) * med.voxel_size   # <= 0 within
@@ -543,10 +543,9 @@ def edge_single_scattering(scene, solution, x, d, g, sigma_t, ds, n_quad=4000):
             axes = [a for a in range(3) if beyond[a] > 0 and sun[a] != 0]
             if not axes:
                 continue
-            a = max(axes, key=lambda a: float(along(a, beyond[a])))
-            at = along(a, beyond[a] + outward[a] * d[a] * s)
             weight = sig * np.exp(-sig * (s + 0.5 * ds))
-            mean = float(np.sum(np.minimum(at, 1.0) * weight) * ds / n_quad / -np.expm1(-sig * ds))
+            mean = max(float(np.sum(np.minimum(along(a, beyond[a] + outward[a] * d[a] * s), 1.0) * weight))
+                       * ds / n_quad / -np.expm1(-sig * ds) for a in axes)
             out += (mean - clamped) * phase * _power(solution, l, c, n_ch)
     return out
 

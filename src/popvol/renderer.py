@@ -146,12 +146,10 @@ def thick_faces(medium) -> bool:
     paths thick across that face (the densest channel's sigma_t times the voxel's side along
     the face's normal): then the march takes the suns' single scattering in the grid's outer
     half cell by Beer-Lambert (kernels.render.edge_single_scattering, docs/METHOD.md Eq. 25d)."""
-    rho, sigma, h = medium.density, float(np.max(medium.scale)), medium.voxel_size
-    for a in range(3):
-        faces = np.take(rho, [0, rho.shape[a] - 1], axis=a)
-        if float(faces.max()) * sigma * float(h[a]) >= EDGE_DEPTH:
-            return True
-    return False
+    densest = medium.derived("densest on the faces", lambda rho: [
+        float(np.take(rho, [0, rho.shape[a] - 1], axis=a).max()) for a in range(3)])
+    sigma = float(np.max(medium.scale))
+    return any(densest[a] * sigma * float(medium.voxel_size[a]) >= EDGE_DEPTH for a in range(3))
 
 
 def field_bundles(solution: Solution) -> tuple[tuple, tuple]:

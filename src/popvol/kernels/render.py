@@ -590,14 +590,13 @@ def edge_single_scattering(medium, lights, grid, x, d, g, sigma_t, jt, ds):
     Beer-Lambert gives a sun's unscattered fluence: light entering by that face (w = d_l . n < 0,
     n the outward normal) has crossed sigma_t over (h_a / 2 - depth) / |w|, so phi_dir =
     exp(-sigma_t (h_a / 2 - depth) / |w|); light leaving by it has the clamped value times
-    exp(-sigma_t depth / w). Beyond the centres along several axes (an edge or corner of the
-    grid) the light came in by one face, and the largest of those values is taken. Along the
-    camera ray phi_dir is then exp(-sigma_t kappa s) of its value at the segment's start, kappa
-    = d[a] / d_l[a] of that axis, and its mean over the segment weighted by the camera's
-    transmittance is taken in closed form,
+    exp(-sigma_t depth / w). Along the camera ray that is exp(-sigma_t kappa s) of its value at
+    the segment's start, kappa = d[a] / d_l[a], and its mean over the segment weighted by the
+    camera's transmittance is taken in closed form,
       phi_dir(start) sigma_t ds m(sigma_t (1 + kappa) ds) / (1 - exp(-sigma_t ds)),
     m(b) = (1 - exp(-b)) / b, so that a lit skin far thinner than the segment is integrated,
-    not sampled. That mean replaces the clamped phi_dir the fields light the sample with
+    not sampled. Beyond the centres along several axes (an edge or corner of the grid) the
+    light came in by one face, and the largest of the axes' means is taken. That mean replaces the clamped phi_dir the fields light the sample with
     (light_sample): the term added is E_l (mean - clamped) f_hg(d_l . -d; g) per light with an
     unscattered part, per channel (a grey field's one channel scaled by the light's RGB power)."""
     density, origin, voxel = medium[0], medium[5], medium[6]
@@ -620,8 +619,8 @@ def edge_single_scattering(medium, lights, grid, x, d, g, sigma_t, jt, ds):
             if sig <= 0.0:                      # a channel the medium does not scatter
                 continue
             clamped = interpolate(direct[l, c], corners)
-            ln_x = -1e300                       # ln phi_dir at x, and kappa, of the brightest axis
-            kappa = 0.0
+            # the segment's mean along each axis x lies beyond the centres on; the largest
+            ln_mean = -1e300
             for a in range(3):
                 u = u0 if a == 0 else (u1 if a == 1 else u2)
                 outward = -1.0 if u < 0.0 else 1.0
@@ -630,17 +629,15 @@ def edge_single_scattering(medium, lights, grid, x, d, g, sigma_t, jt, ds):
                 if depth <= 0.0 or w == 0.0:
                     continue
                 if w < 0.0:
-                    ln_a = -sig * (0.5 * voxel[a] - depth) / -w
+                    ln_x = -sig * (0.5 * voxel[a] - depth) / -w
                 else:
-                    ln_a = math.log(max(clamped, 1e-300)) - sig * depth / w
-                if ln_a > ln_x:
-                    ln_x = ln_a
-                    kappa = d[a] / direction[l, a]
-            if ln_x == -1e300:
+                    ln_x = math.log(max(clamped, 1e-300)) - sig * depth / w
+                kappa = d[a] / direction[l, a]
+                ln_start = min(ln_x + sig * kappa * jt * ds, 0.0)   # exp(-tau) with tau >= 0
+                ln_mean = max(ln_mean, ln_start + math.log(sig * ds) + _log_mean_exp(sig * (1.0 + kappa) * ds)
+                              - math.log(-math.expm1(-sig * ds)))
+            if ln_mean == -1e300:
                 continue
-            ln_start = min(ln_x + sig * kappa * jt * ds, 0.0)   # exp(-tau) with tau >= 0
-            ln_mean = (ln_start + math.log(sig * ds) + _log_mean_exp(sig * (1.0 + kappa) * ds)
-                       - math.log(-math.expm1(-sig * ds)))
             v = (math.exp(min(ln_mean, 0.0)) - clamped) * f
             if n_ch == 1:
                 v0 += v * power[l, 0]
