@@ -7,11 +7,12 @@ scattering, ``Solution.single_scattering()``) against tests/montecarlo.py's half
 plane-parallel medium of the slab's optical thickness (independent of popvol), per voxel
 optical depth and grid. Prints a Markdown table.
 
-    python scripts/dense_slab.py [--taus 0.25,1,10,100,1e4] [--resolutions 16,32] [--solver sweep] [--pad 0]
+    python scripts/dense_slab.py [--taus 0.25,1,10,100,1e4] [--resolutions 16,32] [--solver sweep] [--pad 0] [--gather 64]
     python scripts/dense_slab.py --cube [--taus 0.25,0.5,1,10,1e4]
 
 ``--solver``: experimental.solver (sweep, jacobi, binned or ordinates). ``--pad N``: N layers
 of empty voxels above the slab (tests/slab.py), as a volume from a file has around it.
+``--gather``: method.gather (0: the fields' lobes light the camera).
 ``--cube``: instead, the single scattering of tests/slab.py's cube filling its grid (lit through
 three faces, seen from a corner, 16 cells) against its independent integral
 (cube_single_scattering), over the pixels that see it: the ratio of the sums, and the worst,
@@ -38,6 +39,7 @@ def main():
     ap.add_argument("--resolutions", default="16,32")
     ap.add_argument("--solver", default="sweep", help="experimental.solver")
     ap.add_argument("--pad", type=int, default=0, help="layers of empty voxels above the slab")
+    ap.add_argument("--gather", type=int, default=64, help="method.gather (0: the lobes light the camera)")
     ap.add_argument("--cube", action="store_true", help="the cube filling its grid instead (single scattering)")
     args = ap.parse_args()
     taus = [float(t) for t in args.taus.split(",")]
@@ -52,7 +54,7 @@ def main():
         mc = half_space_mc(LIGHT, VIEW, ALBEDO, G, depth=slab_depth(tau), n_photons=200_000)
         cells = []
         for res in resolutions:
-            scene = apply_overrides(slab_scene(tau, res, pad=args.pad), solver=args.solver)
+            scene = apply_overrides(slab_scene(tau, res, pad=args.pad), solver=args.solver, gather=args.gather)
             sol = popvol.solve(scene)
             total = centre_radiance(popvol.render(scene, sol, jitter=False))
             single = centre_radiance(popvol.render(scene, sol.single_scattering(), jitter=False))

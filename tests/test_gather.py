@@ -110,7 +110,7 @@ def test_front_lit_slab_with_gathered_last_bounce_matches_monte_carlo(tau, resol
     Monte Carlo at 0.25 and 1 mean free paths per voxel (measured x0.968 / x0.938 at 0.25,
     x0.946 / x1.054 at 1, 16 / 32 cells; x0.937 / x1.050 at 1 before the grid edge's single
     scattering, docs/METHOD.md Eq. 25d), where the default lights the camera from the
-    fields' lobes and is x1.18-x1.40 (tests/test_dense_slab.py). Gathered on blocks of 2^3
+    fields' lobes and is x1.17-x1.41 (gather = 0). Gathered on blocks of 2^3
     voxels (gather_resolution 8; half a mean free path each, so the slab, 4 voxels thick, is
     two blocks thick) within 10 % (measured x0.909 at 32 cells)."""
     from montecarlo import half_space_mc
