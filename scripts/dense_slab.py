@@ -22,6 +22,8 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -64,7 +66,6 @@ def main():
 
 def cube_table(taus) -> None:
     """Print the cube's single scattering against its integral, per optical depth of a voxel."""
-    import numpy as np
     print("| mean free paths per voxel | popvol / integral | worst pixel | 10th / 90th percentile |")
     print("|---|---|---|---|")
     for tau in taus:

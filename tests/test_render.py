@@ -473,16 +473,19 @@ def test_thick_faces_decide_the_edge_correction():
     """renderer.thick_faces: some voxel on the grid's faces at least EDGE_DEPTH mean free paths
     thick along the face's normal; a cube of 0.2 mean free paths per voxel is not (its clamped
     fields are used as they are), one of 0.25 is, and so is a grid whose one thick face voxel
-    lies on one face only."""
+    lies on one face only; a thick voxel inside the grid does not count."""
     from popvol.kernels.render import EDGE_DEPTH
     from popvol.renderer import thick_faces
-    assert EDGE_DEPTH == 0.25
+    assert EDGE_DEPTH == 0.25                        # a change detector: docs/METHOD.md quotes it
     assert not thick_faces(dense_cube_scene(0.2).medium)
     assert thick_faces(dense_cube_scene(0.25).medium)
     med = dense_cube_scene(0.1).medium
     rho = np.zeros_like(med.density)
     rho[3, 4, -1] = 5.0                              # 0.5 mean free paths, on the +z face
     assert thick_faces(dataclasses.replace(med, density=rho))
+    inside = np.zeros_like(med.density)
+    inside[3, 4, 4] = 50.0
+    assert not thick_faces(dataclasses.replace(med, density=inside))
 
 
 def test_a_light_without_unscattered_light_gets_no_edge_single_scattering():

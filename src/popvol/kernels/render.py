@@ -602,9 +602,7 @@ def edge_single_scattering(medium, lights, grid, x, d, g, sigma_t, jt, ds):
     density, origin, voxel = medium[0], medium[5], medium[6]
     s = density.shape
     u0, u1, u2 = (x[0] - origin[0]) / voxel[0], (x[1] - origin[1]) / voxel[1], (x[2] - origin[2]) / voxel[2]
-    v0 = v1 = v2 = 0.0
-    if 0.0 <= u0 <= s[0] - 1.0 and 0.0 <= u1 <= s[1] - 1.0 and 0.0 <= u2 <= s[2] - 1.0:
-        return v0, v1, v2
+    v0 = v1 = v2 = 0.0          # and so they stay where no axis has x beyond the centres
     corners = cell_corners(u0, u1, u2, s)
     is_point, direction, power, unscattered = lights[IS_POINT], lights[DIRECTION], lights[POWER], lights[UNSCATTERED]
     direct = grid[DIRECT]
