@@ -165,7 +165,9 @@ KNOBS: tuple[Knob, ...] = (
          "many blocks along the grid's longest side but none wider than half a mean free path where "
          "the medium is dense, and read back by trilinear interpolation (the sweeps cost about "
          "f^-3 as much); 0 = the medium's own voxels."),
-    Knob("spp", 1, (1, 4096), "Jittered camera rays per pixel.", cli=("render", "compare")),
+    Knob("spp", 1, (1, 4096), "Camera rays per pixel.",
+         "1 = one ray through the pixel centre, lit at the march segments' midpoints; more = "
+         "that many rays at hashed (seeded) sub-pixel and along-ray offsets.", cli=("render", "compare")),
     Knob("exposure", "auto", (-64.0, 64.0), "PNG exposure in stops, or \"auto\".",
          "\"auto\" places the 99th percentile of the lit pixels' luminance at 1.44 (Zone VIII: "
          "white with texture), shown at sRGB code 197 by `tone = \"aces\"`. The EXR stays linear.",
@@ -173,7 +175,7 @@ KNOBS: tuple[Knob, ...] = (
     Knob("tone", "aces", ("aces", "clip"), "Tone curve of the PNG.",
          "The ACES 2.0 SDR sRGB view (OpenColorIO's built-in config; highlights roll off) or "
          "clip to [0, 1] and sRGB-encode. The EXR stays linear.", cli=("render",)),
-    Knob("seed", 0, (0, 2**63 - 1), "Seed of the pixel jitter.", allowed_text="[0, 2^63 - 1]"),
+    Knob("seed", 0, (0, 2**63 - 1), "Seed of the pixel jitter (spp > 1).", allowed_text="[0, 2^63 - 1]"),
 )
 
 #: Knobs by name.

@@ -40,12 +40,14 @@ GATHER_CAP_MARGIN = np.radians(15.0)
 GATHER_MARGIN = 2
 
 
-def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
+def render(scene: Scene, solution: Solution | None = None, jitter: bool | None = None,
            combined: bool | None = None, skip: bool = True) -> np.ndarray:
     """Linear HDR image float32 (height, width, 3) of ``scene``.
 
     ``solution`` is the output of :func:`popvol.solve`; if omitted the scene is solved first.
-    Moving only the camera does not need a new solution. ``combined``: light the samples from
+    Moving only the camera does not need a new solution. ``jitter``: hashed sub-pixel and
+    along-ray offsets per sample, else one sample at the pixel centre and the march segments'
+    midpoints (None: jitter when ``method.spp`` > 1; docs/METHOD.md, Eq. 25). ``combined``: light the samples from
     one in-scattering source built for this view (kernels/source.py), else light by light
     (None: whichever costs less, by COMBINED_VOXELS_PER_SAMPLE; the images differ by relMSE
     <= 1e-4, docs/METHOD.md); ``skip``: jump over empty blocks of the medium (the image is bitwise the same).
@@ -68,7 +70,7 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool = True,
     return out
 
 
-def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combined: bool | None = None,
+def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, combined: bool | None = None,
                   skip: bool = True) -> tuple:
     """The render kernel's inputs but the image, packed as it takes them (kernels/render.py):
     (medium, lights, grid, spherical, view, camera, march, background). The one place that
@@ -137,6 +139,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool = True, combine
     step = float(m.step * med.voxel_size.min())
     # whether any block is dense enough that the march splits its segments (the kernel's own rule)
     dense = bool(blocks.size) and substeps(medium, float(blocks.max()), step) > 1
+    if jitter is None:                    # one sample: the pixel centre is closer to the pixel's mean
+        jitter = m.spp > 1
     march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense, int(m.max_step), thick_faces(med))
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
 

@@ -18,7 +18,8 @@ is convex in A there), so the two are lit apart:
 (the same fluence and first moment). phi_dir is taken at most phi_l: the walk's fluence holds
 the unscattered light, and only interpolation across a shadow edge can put it below.
 
-Each march segment of length ds uses sigma_t at a jittered point inside it and integrates T_v
+Each march segment of length ds uses sigma_t at one point inside it (its midpoint at one sample
+per pixel, a hashed point at more) and integrates T_v
 exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
 
 Two shortcuts, neither changing which samples are taken:
@@ -776,7 +777,8 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     camera: origin float64 (3,); basis float64 (3, 3), rows forward, right, up; tan_half, the
         tangent of half the vertical field of view; width, height in pixels.
     march: step in world units; spp samples per pixel; seed; jitter: hashed sub-pixel and
-        along-ray offsets (False: pixel centres and segment midpoints, for tests); skip: jump
+        along-ray offsets (False: pixel centres and segment midpoints, renderer.render's
+        choice at one sample per pixel); skip: jump
         over empty blocks; dense: whether a segment of ``step`` is optically thicker than
         MAX_SEGMENT_DEPTH in some block (march_ray splits those); coarse: the most steps one
         sample spans in thin blocks (1: every segment one step; method.max_step); edge: whether
