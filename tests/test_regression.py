@@ -6,22 +6,23 @@ ray crosses the medium, the scale-free relMSE (eps = 0.01 x the squared mean ref
 there), the brightness ratio popvol / reference there, and the same ratio in three bands of the
 reference's luminance (dimmest 50 %, middle 40 %, brightest 10 % of those pixels). Measured with
 the default method (moment + poisson + diffusion stage, the last scattering gathered from 64
-directions, 128 cells): relMSE 0.0382, brightness x0.922, bands dim x1.029, mid x0.909, bright
-x0.856; the walk alone (no diffusion stage) relMSE 0.621, brightness x1.66.
+directions, 128 cells, one sample at each pixel centre): relMSE 0.0142, brightness x0.921, bands
+dim x1.025, mid x0.909, bright x0.854; the walk alone (no diffusion stage) relMSE 0.569,
+brightness x1.67.
 
 These are popvol's own earlier output, not an independent bound on its accuracy. The accuracy
 GOAL is relMSE <= 0.03 and every band ratio within 5 % of 1 (GOAL_*); this scene misses it now
-(relMSE about 1.3 times the goal; the brightest 10 %, the lit faces, ~14 % too dark; README,
-"What it computes, and where it is biased"). The guard's margins are derived from the goal: relMSE
-may rise by half the goal's whole budget (RELMSE_GUARD, ~39 % of the measured figure) plus the
-reference's own noise; the overall and band ratios may move by 0.6 x the goal's 5 %
-(BAND_GUARD, 0.03) either way. popvol's image is deterministic (seeded
-jitter, thread-count-independent sweep bands), so the margins are far above rounding: a change
+(its relMSE is within the goal, but the brightest 10 %, the lit faces, are ~15 % too dark and the
+middle 40 % ~9 %; README, "What it computes, and where it is biased"). The guard's margins are
+derived from the goal: relMSE may rise by half the goal's whole budget (RELMSE_GUARD, about the
+measured figure again) plus the reference's own noise; the overall and band ratios may move by
+0.6 x the goal's 5 % (BAND_GUARD, 0.03) either way. popvol's image is deterministic (one sample
+at each pixel centre, thread-count-independent sweep bands), so the margins are far above rounding: a change
 that makes the default measurably worse, or a band measurably better, must update MEASURED_*.
 The accuracy itself, scene by scene, is in docs/ACCURACY.md.
 
 tests/fixtures/regression_cloud.exr is made by scripts/make_test_references.py (65536 spp; its
-own noise in the same metric 5.9e-4, about 1/65 of the relMSE pinned here).
+own noise in the same metric 5.9e-4, about 1/24 of the relMSE pinned here).
 """
 from pathlib import Path
 
@@ -38,9 +39,9 @@ GOAL_RELMSE, GOAL_BAND = 0.03, 0.05
 #: regression guard margins, derived from the goal
 RELMSE_GUARD, BAND_GUARD = 0.5 * GOAL_RELMSE, 0.6 * GOAL_BAND
 #: popvol's last measured figures for the default method (module docstring)
-MEASURED_RELMSE, MEASURED_BRIGHTNESS = 0.0382, 0.922
-MEASURED_BANDS = {"dim": 1.029, "mid": 0.909, "bright": 0.856}
-MEASURED_WALK_RELMSE = 0.621
+MEASURED_RELMSE, MEASURED_BRIGHTNESS = 0.0142, 0.921
+MEASURED_BANDS = {"dim": 1.025, "mid": 0.909, "bright": 0.854}
+MEASURED_WALK_RELMSE = 0.569
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +77,7 @@ def test_default_method_regression_guard_against_mitsuba(reference, mask):
 
 def test_default_is_far_better_than_the_walk_alone(reference, mask):
     """The walk alone (no diffusion stage) errs far more on the same reference: measured relMSE
-    0.621, brightness x1.66, against the default's 0.0382."""
+    0.569, brightness x1.67, against the default's 0.0142."""
     walk = metrics.relmse(render(isotropic="walk"), reference.image, mask)
     assert walk > 5 * MEASURED_RELMSE
 
@@ -87,7 +88,7 @@ def test_fixture_reference_loads_and_names_its_scene_portably(reference, mask):
     to the fixture folder, not by a path of the machine that rendered it. The optical-depth mask
     holds the luminance mask's pixels (black background) and a thin fringe more."""
     assert (reference.spp, reference.passes) == (65536, 16)
-    assert reference.noise_relmse(mask) < 0.02 * MEASURED_RELMSE
+    assert reference.noise_relmse(mask) < 0.05 * MEASURED_RELMSE
     lum = metrics.luminance_mask(reference.image)
     assert (lum & ~mask).sum() == 0 and lum.sum() <= mask.sum() <= 1.1 * lum.sum()
     scene = Path(reference.meta["scene"])

@@ -21,8 +21,8 @@ empty, an absorbing-only and an optically thin medium):
 - Camera: ``perspective`` sensor, ``fov_axis = "y"`` (popvol's fov is vertical), ``look_at`` with
   the same origin, target and up; Mitsuba's image x axis runs along -(camera x) of its look-at
   frame, which is popvol's "right" (tests check the orientation with an off-centre blob).
-- Film: ``hdrfilm`` with a ``box`` reconstruction filter (popvol jitters uniformly in the pixel),
-  linear RGB.
+- Film: ``hdrfilm`` with a ``box`` reconstruction filter, the pixel's mean (popvol samples its
+  centre at one sample per pixel and jitters uniformly in it at more), linear RGB.
 - Integrator: ``volpath`` with ``max_depth`` (default 1024) and Russian roulette from depth 32.
 
 Reference images are accumulated over passes: ``REF.exr`` holds the mean, ``REF.exr.json`` the
