@@ -6,9 +6,10 @@ root, with the suite's references in build/accuracy/, made by scripts/accuracy_t
 SCENE: names of scenes/accuracy/ (default: every one whose reference exists). One solution per
 scene at ``--resolution`` cells, rendered at the reference's size with each ``--spp`` (hashed
 sub-pixel and along-ray offsets, the default's sampling at more than one) and once without
-jitter (pixel centres and segment midpoints, one sample: the default at spp = 1), each measured against the reference in popvol compare's
-metric (relMSE, brightness, the dimmest 50 % / middle 40 % / brightest 10 %), and the first
-spp's image against the last's (its own noise, if the last is converged).
+jitter (pixel centres and segment midpoints, one sample: the default at spp = 1), each
+measured against the reference in popvol compare's metric (relMSE, brightness, the dimmest
+50 % / middle 40 % / brightest 10 %), and the first spp's image against the last's (its own
+noise, if the last is converged).
 """
 from __future__ import annotations
 

@@ -8,7 +8,8 @@ what each step changes in the image, in the metric of ``popvol compare``, and wh
 Every scene of examples/ that loads here, and the regression fixture, is solved once at its own
 method resolution and rendered at each step, with each ``--max-steps`` (method.max_step: how
 many steps one sample may span in thin blocks), and at the finest step / 4 with one sample
-per step (the reference, also jittered). Columns: relMSE on the pixels that see the medium,
+per step (the reference), all with one jittered sample per pixel (hashed from method.seed;
+the default at spp = 1 is the pixel centre). Columns: relMSE on the pixels that see the medium,
 brightness ratio overall and in the brightest 10 %, and the render's seconds (best of 3, 2 cores). With ``--seeds N`` each
 step is rendered with method.seed 0 .. N-1 (other sub-pixel and along-ray offsets) and the
 columns are the mean and standard deviation over the seeds: popvol's own 1-spp sampling noise.
@@ -40,7 +41,7 @@ def render(scene, solution, step, seed=0, repeat=3, max_step=1):
     best = float("inf")
     for _ in range(repeat):
         t0 = time.perf_counter()
-        image = popvol.render(s, solution)
+        image = popvol.render(s, solution, jitter=True)    # the seeds' offsets, as at spp > 1
         best = min(best, time.perf_counter() - t0)
     return image, best
 

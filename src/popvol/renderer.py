@@ -47,8 +47,8 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool | None =
     ``solution`` is the output of :func:`popvol.solve`; if omitted the scene is solved first.
     Moving only the camera does not need a new solution. ``jitter``: hashed sub-pixel and
     along-ray offsets per sample, else one sample at the pixel centre and the march segments'
-    midpoints (None: jitter when ``method.spp`` > 1; docs/METHOD.md, Eq. 25). ``combined``: light the samples from
-    one in-scattering source built for this view (kernels/source.py), else light by light
+    midpoints (None: jitter when ``method.spp`` > 1; docs/METHOD.md, Eq. 25). ``combined``:
+    light the samples from one in-scattering source built for this view (kernels/source.py), else light by light
     (None: whichever costs less, by COMBINED_VOXELS_PER_SAMPLE; the images differ by relMSE
     <= 1e-4, docs/METHOD.md); ``skip``: jump over empty blocks of the medium (the image is bitwise the same).
     With ``method.gather`` > 0 the combined source is always used (it holds the gathered light),

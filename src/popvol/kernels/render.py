@@ -19,8 +19,8 @@ is convex in A there), so the two are lit apart:
 the unscattered light, and only interpolation across a shadow edge can put it below.
 
 Each march segment of length ds uses sigma_t at one point inside it (its midpoint at one sample
-per pixel, a hashed point at more) and integrates T_v
-exactly over the segment: int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
+per pixel, a hashed point at more) and integrates T_v exactly over the segment:
+int T = T_v (1 - exp(-sigma_t ds)) / sigma_t.
 
 Two shortcuts, neither changing which samples are taken:
 - A combined source. The camera ray's direction at a point x is (x - c) / |x - c|, a function
@@ -777,14 +777,13 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     camera: origin float64 (3,); basis float64 (3, 3), rows forward, right, up; tan_half, the
         tangent of half the vertical field of view; width, height in pixels.
     march: step in world units; spp samples per pixel; seed; jitter: hashed sub-pixel and
-        along-ray offsets (False: pixel centres and segment midpoints, renderer.render's
-        choice at one sample per pixel); skip: jump
-        over empty blocks; dense: whether a segment of ``step`` is optically thicker than
-        MAX_SEGMENT_DEPTH in some block (march_ray splits those); coarse: the most steps one
-        sample spans in thin blocks (1: every segment one step; method.max_step); edge: whether
-        some voxel on the grid's faces is at least EDGE_DEPTH mean free paths thick, so that
-        samples in the grid's outer half cell take the suns' single scattering there exactly
-        (edge_single_scattering).
+        along-ray offsets (False: pixel centres and segment midpoints, renderer.render's choice
+        at one sample per pixel); skip: jump over empty blocks; dense: whether a segment of
+        ``step`` is optically thicker than MAX_SEGMENT_DEPTH in some block (march_ray splits
+        those); coarse: the most steps one sample spans in thin blocks (1: every segment one
+        step; method.max_step); edge: whether some voxel on the grid's faces is at least
+        EDGE_DEPTH mean free paths thick, so that samples in the grid's outer half cell take the
+        suns' single scattering there exactly (edge_single_scattering).
     background: float32 (1, 1, 3) (a constant) or (H, 2H, 3) (a lat-long environment map, see
         background_radiance).
     """
