@@ -12,8 +12,10 @@ build/gallery/NAME_ref.exr, made beforehand by
     popvol reference examples/NAME.toml -o build/gallery/NAME_ref.exr --spp 256 --passes 4 \\
         --variant llvm_ad_rgb --width W --height H
 
-and the figure shows popvol | Mitsuba at the reference's automatic exposure (both panels the
-same), with `popvol compare`'s figures in the table.
+and, for the WDAS scenes (1024 spp) and the cumulus field (512), run again with ``--spp 768
+--passes 12`` and ``--spp 256 --passes 4`` (a reference is extended with the same 64 samples
+per pass); the figure shows popvol | Mitsuba at the reference's automatic exposure (both
+panels the same), with `popvol compare`'s figures in the table.
 """
 from __future__ import annotations
 
