@@ -14,13 +14,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from pathlib import Path
 
 import popvol
 from popvol import metrics
-from popvol.reference import load_reference
-
-ROOT = Path(__file__).resolve().parents[1]
+from spp_study import row, suite_cases
 
 
 def main() -> None:
@@ -29,27 +26,18 @@ def main() -> None:
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--max-steps", default="1,2,4,8")
     args = ap.parse_args()
-    names = args.scenes or sorted(p.stem for p in (ROOT / "build" / "accuracy").glob("*.exr"))
     spans = [int(s) for s in args.max_steps.split(",")]
-    print("| scene | max_step | relMSE | brightness | dim / mid / bright | against the first: relMSE, brightness |")
-    print("|---|---|---|---|---|---|")
-    for name in names:
-        ref = load_reference(ROOT / "build" / "accuracy" / f"{name}.exr")
-        h, w = ref.image.shape[:2]
-        scene = popvol.load_scene(ROOT / "scenes" / "accuracy" / f"{name}.toml", width=w, height=h,
-                                  resolution=args.resolution)
-        mask = metrics.medium_mask(ref.image, scene)
+    print("| scene, max_step | relMSE | brightness | dim / mid / bright | against the first: relMSE, brightness |")
+    print("|---|---|---|---|---|")
+    for name, ref, scene, mask in suite_cases(args.scenes, args.resolution, columns=5):
         solution = popvol.solve(scene)
         first = None
         for n in spans:
             img = popvol.render(dataclasses.replace(scene, method=dataclasses.replace(scene.method, max_step=n)),
                                 solution)
             first = img if first is None else first
-            b = metrics.band_ratios(img, ref.image, mask)
-            print(f"| {name} | {n} | {metrics.relmse(img, ref.image, mask):.4f} | "
-                  f"x{metrics.brightness_ratio(img, ref.image, mask):.3f} | "
-                  + " / ".join(f"x{b[k]:.3f}" for k in ("dim", "mid", "bright"))
-                  + f" | {metrics.relmse(img, first, mask):.2e}, x{metrics.brightness_ratio(img, first, mask):.4f} |",
+            print(row(f"{name}, {n}", img, ref.image, mask)
+                  + f" {metrics.relmse(img, first, mask):.2e}, x{metrics.brightness_ratio(img, first, mask):.4f} |",
                   flush=True)
 
 

@@ -29,26 +29,33 @@ def row(label: str, img, ref, mask) -> str:
             + " / ".join(f"x{b[k]:.3f}" for k in ("dim", "mid", "bright")) + " |")
 
 
+def suite_cases(names: list[str], resolution: int, columns: int = 4):
+    """(name, reference, scene at the reference's size and ``resolution`` cells, medium mask)
+    of each scenes/accuracy/ NAME (all whose reference exists if ``names`` is empty); a row
+    of ``columns`` cells for each scene without a reference."""
+    names = names or sorted(p.stem for p in (ROOT / "build" / "accuracy").glob("*.exr"))
+    for name in names:
+        ref_path = ROOT / "build" / "accuracy" / f"{name}.exr"
+        if not ref_path.exists():
+            print(f"| {name}: no {ref_path.relative_to(ROOT)} |" + " |" * (columns - 1))
+            continue
+        ref = load_reference(ref_path)
+        h, w = ref.image.shape[:2]
+        scene = popvol.load_scene(ROOT / "scenes" / "accuracy" / f"{name}.toml", width=w, height=h,
+                                  resolution=resolution)
+        yield name, ref, scene, metrics.medium_mask(ref.image, scene)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("scenes", nargs="*")
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--spp", default="1,4,16")
     args = ap.parse_args()
-    names = args.scenes or sorted(p.stem for p in (ROOT / "build" / "accuracy").glob("*.exr"))
     spps = [int(s) for s in args.spp.split(",")]
     print("| scene, sampling | relMSE | brightness | dim / mid / bright |")
     print("|---|---|---|---|")
-    for name in names:
-        ref_path = ROOT / "build" / "accuracy" / f"{name}.exr"
-        if not ref_path.exists():
-            print(f"| {name}: no {ref_path.relative_to(ROOT)} | | | |")
-            continue
-        ref = load_reference(ref_path)
-        h, w = ref.image.shape[:2]
-        scene = popvol.load_scene(ROOT / "scenes" / "accuracy" / f"{name}.toml", width=w, height=h,
-                                  resolution=args.resolution)
-        mask = metrics.medium_mask(ref.image, scene)
+    for name, ref, scene, mask in suite_cases(args.scenes, args.resolution):
         noise = metrics.noise_relmse(ref.variance, ref.image, mask) if ref.variance is not None else float("nan")
         solution = popvol.solve(scene)
         images = {}
