@@ -12,21 +12,15 @@ the reference, and the relMSE and brightness against the first ``--max-steps``' 
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 
 import popvol
 from popvol import metrics
-from spp_study import row, suite_cases
+from spp_study import row, study_args, suite_cases
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("scenes", nargs="*")
-    ap.add_argument("--resolution", type=int, default=128)
-    ap.add_argument("--max-steps", default="1,2,4,8")
-    args = ap.parse_args()
-    spans = [int(s) for s in args.max_steps.split(",")]
+    args, spans = study_args(__doc__, "--max-steps", "1,2,4,8")
     print("| scene, max_step | relMSE | brightness | dim / mid / bright | against the first: relMSE, brightness |")
     print("|---|---|---|---|---|")
     for name, ref, scene, mask in suite_cases(args.scenes, args.resolution, columns=5):

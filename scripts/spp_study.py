@@ -46,13 +46,19 @@ def suite_cases(names: list[str], resolution: int, columns: int = 4):
         yield name, ref, scene, metrics.medium_mask(ref.image, scene)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def study_args(doc: str, option: str, default: str):
+    """The arguments of a study over the suite: SCENE ..., --resolution and ``option``, a
+    comma-separated list of integers; returns (args, that list)."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
     ap.add_argument("scenes", nargs="*")
     ap.add_argument("--resolution", type=int, default=128)
-    ap.add_argument("--spp", default="1,4,16")
+    ap.add_argument(option, default=default)
     args = ap.parse_args()
-    spps = [int(s) for s in args.spp.split(",")]
+    return args, [int(s) for s in getattr(args, option[2:].replace("-", "_")).split(",")]
+
+
+def main() -> None:
+    args, spps = study_args(__doc__, "--spp", "1,4,16")
     print("| scene, sampling | relMSE | brightness | dim / mid / bright |")
     print("|---|---|---|---|")
     for name, ref, scene, mask in suite_cases(args.scenes, args.resolution):
