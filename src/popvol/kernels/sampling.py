@@ -155,23 +155,34 @@ def block_sums(x, factor, held, out):
     ceil(n / factor) per axis, divided by the voxels the block holds if ``held`` (the mean; a
     block at a far edge averages the voxels it holds), else not (the sum, or the mean of the
     grid padded with zeros once divided by factor^3). Each block is summed by one thread in a
-    fixed order, in float64. NumPy twins: tests/twins.py (block_mean, coarsen)."""
+    fixed order, in float64: per row of voxels along z, each block's run x[lf], x[lf + 1], ...
+    into its partial sum (0 + x[lf] + x[lf + 1] + ...), the rows' partial sums then in row
+    order. The partial sums of a row are made one offset r at a time across all its blocks
+    (the loop over blocks the compiler vectorises). NumPy twins: tests/twins.py (block_mean,
+    coarsen)."""
     m, nx, ny, nz = x.shape
     bx, by, bz = out.shape[1], out.shape[2], out.shape[3]
-    for t in nb.prange(m * bx):         # one slab of blocks each, its voxels read in memory order
+    whole = nz // factor                # blocks along z that hold factor voxels
+    for t in nb.prange(m * bx):         # one slab of blocks each
         k = t // bx
         i = t % bx
         a0 = i * factor
         a1 = min(a0 + factor, nx)
         acc = np.zeros((by, bz))
+        s = np.empty(bz)
         for a in range(a0, a1):
             for b in range(ny):
                 j = b // factor
+                row = x[k, a, b]
+                s[:] = 0.0
+                for r in range(factor):
+                    for l in range(whole):
+                        s[l] += row[l * factor + r]
+                    for l in range(whole, bz):      # the last block, if it holds fewer
+                        if l * factor + r < nz:
+                            s[l] += row[l * factor + r]
                 for l in range(bz):
-                    s = 0.0
-                    for c in range(l * factor, min(l * factor + factor, nz)):
-                        s += x[k, a, b, c]
-                    acc[j, l] += s
+                    acc[j, l] += s[l]
         for j in range(by):
             nb_ = min(factor, ny - j * factor)
             for l in range(bz):
