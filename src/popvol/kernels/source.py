@@ -54,7 +54,8 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
                 walk = not is_point[l]          # a point light's walk lobes are lit per sample
                 if not walk and not has_diffuse:
                     continue
-                ld = l if has_diffuse else 0    # (phid and flux have no rows without diffusion)
+                # without the diffusion stage phid and flux have no rows: row 0's views are made, never read
+                ld = l if has_diffuse else 0
                 for c in range(n_ch):
                     row_terms(phi[l, c, i, j, k0:k1], phia[l, c, i, j, k0:k1], direct[l, c, i, j, k0:k1],
                               phid[ld, c, i, j, k0:k1], flux[ld, c, 0, i, j, k0:k1], flux[ld, c, 1, i, j, k0:k1],
