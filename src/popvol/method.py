@@ -137,6 +137,12 @@ KNOBS: tuple[Knob, ...] = (
          "\\|a\\| < handover_scale * (1 - exp(-sigma_tr h)), h the cell size, sigma_tr = sigma_a + "
          "sigma_s (1 - g): a threshold in the medium's transport mean free paths, so images do not "
          "change with the grid.", experimental=True),
+    Knob("environment_handover_scale", 0.5, (0.0, 100.0),
+         "`handover_scale` of the lights whose unscattered light is not kept apart.",
+         "An environment's lights (and a sun with `a0` < 1) carry their single scattering in the "
+         "walk's lobes, not in a direct field: handed over at a sun's threshold, their light near the "
+         "surface went to the diffusion stage and the sky-lit WDAS cloud came out x0.62 "
+         "(docs/METHOD.md, \"Hand-over\").", experimental=True),
     Knob("diffusion_resolution", 64, (0, 4096), "Cells along the longest side of the diffusion grid.",
          "Its cells are blocks of the light's domain; 0 = the domain's own cells."),
     Knob("environment_resolution", 64, (2, 4096), "`resolution` of the domains of an environment's lights.",

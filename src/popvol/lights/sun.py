@@ -106,12 +106,18 @@ class SunDomain(DirectionalDomain):
         return resample_medium(medium, self, channel)
 
     def walk(self, optics, method, progress=None):
-        """Walk unit irradiance from the face k = 0 (E h^2 per cell of slice 0)."""
+        """Walk unit irradiance from the face k = 0 (E h^2 per cell of slice 0); with the
+        diffusion stage, packets hand over at ``method.handover_scale`` times the cell's
+        :func:`handover_factor`, or at ``method.environment_handover_scale`` times it for a
+        broad lobe (a0 < 1), which has no direct field."""
         sigma_t, sigma_s, g = optics
         Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
         handover = None
         if method.isotropic == "diffusion" and method.solver != "ordinates":   # six ordinates walk it all
-            handover = (method.handover_scale, handover_factor(sigma_t, sigma_s, g, self.h))
+            # a broad lobe (an environment's light) has no direct field: its single scattering is
+            # the walk's, so it is handed over later (docs/METHOD.md, "Hand-over")
+            scale = method.handover_scale if self.a0 == 1.0 else method.environment_handover_scale
+            handover = (scale, handover_factor(sigma_t, sigma_s, g, self.h))
         injection = np.full(self.shape[1:], self.h * self.h, np.float32)
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
                           method.tolerance, method.max_iterations, progress=progress, handover=handover)
