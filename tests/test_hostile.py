@@ -338,7 +338,8 @@ FIELDS += [("camera", k) for k in ("origin", "target", "up", "fov", "width", "he
 FIELDS += [("background", k) for k in ("type", "radiance")]
 FIELDS += [("method", k) for k in ("resolution", "diffusion_resolution", "environment_resolution", "tolerance",
                                    "max_iterations", "step", "spp", "exposure", "tone", "seed")]
-FIELDS += [("experimental", k) for k in ("solver", "rule", "decay", "isotropic", "handover_scale")]
+FIELDS += [("experimental", k) for k in ("solver", "rule", "decay", "isotropic", "handover_scale",
+                                         "environment_handover_scale")]
 FIELDS += [("", k) for k in ("medium", "lights", "light", "camera", "background", "method", "bogus")]
 
 numbers = st.one_of(st.integers(min_value=-2**70, max_value=2**70), st.integers(min_value=-(10**400), max_value=10**400),
