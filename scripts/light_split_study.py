@@ -61,8 +61,9 @@ def scene_of(data: dict, path: Path, part: str, width: int, height: int, resolut
 
 
 def measure(img, ref, mask) -> str:
-    bands = metrics.band_ratios(img, ref.image, mask)
-    return (f"{metrics.relmse(img, ref.image, mask):.3f} | x{metrics.brightness_ratio(img, ref.image, mask):.3f} | "
+    """relMSE | brightness | dim / mid / bright of ``img`` against the reference image ``ref``."""
+    bands = metrics.band_ratios(img, ref, mask)
+    return (f"{metrics.relmse(img, ref, mask):.3f} | x{metrics.brightness_ratio(img, ref, mask):.3f} | "
             + " / ".join(f"x{v:.3f}" for v in bands.values()))
 
 
@@ -101,11 +102,10 @@ def main() -> None:
         mask = metrics.medium_mask(total, whole)
         for part, ref in refs.items():
             noise = ref.noise_relmse(mask)
-            cells = " | ".join(measure(img, ref, mask) for img in images[part])
+            cells = " | ".join(measure(img, ref.image, mask) for img in images[part])
             print(f"| {path.stem} | {part} | {noise:.3f} | {cells} |", flush=True)
         if len(refs) > 1:
-            both = dataclasses.replace(next(iter(refs.values())), image=total, variance=None)
-            cells = " | ".join(measure(sum(images[p][i] for p in refs), both, mask) for i in range(len(VARIANTS)))
+            cells = " | ".join(measure(sum(images[p][i] for p in refs), total, mask) for i in range(len(VARIANTS)))
             print(f"| {path.stem} | both | - | {cells} |", flush=True)
 
 

@@ -1,11 +1,11 @@
 """Render the Mitsuba 3 references that tests compare against (run from the repository root):
 
-    python scripts/make_test_references.py [NAME ...] [--scale 1]
+    python scripts/make_test_references.py [NAME ...]
 
 tests/fixtures/NAME.exr (+ .json, .npz sidecars) of the scene tests/fixtures/NAME.toml, each
 converged far below its test's margin (its noise relMSE is printed and stored beside it):
 regression_cloud (64x64, 65536 spp; tests/test_regression.py) and sky_cloud (64x64, 16384 spp;
-tests/test_environment.py); all of them without NAME. ``--scale`` multiplies the samples.
+tests/test_environment.py); all of them without NAME.
 Needs popvol[reference]; the LLVM variant needs a system libLLVM >= 16 (apt-get install libllvm19).
 """
 import argparse
@@ -22,7 +22,6 @@ SPP = {"regression_cloud": 65536, "sky_cloud": 16384}
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("names", nargs="*", help=f"fixtures to render: {', '.join(sorted(SPP))} (default: all)")
-    ap.add_argument("--scale", type=float, default=1.0)
     ap.add_argument("--variant", default="llvm_ad_rgb")
     args = ap.parse_args()
     unknown = sorted(set(args.names) - set(SPP))
@@ -31,7 +30,7 @@ def main():
     for name in args.names or sorted(SPP):
         scene = popvol.load_scene(FIXTURES / f"{name}.toml")
         out = FIXTURES / f"{name}.exr"
-        ref = render_reference(scene, out, max(16, int(SPP[name] * args.scale)), args.variant, passes=16, resume=False)
+        ref = render_reference(scene, out, SPP[name], args.variant, passes=16, resume=False)
         print(f"{out}: {ref.spp} spp, noise relMSE {ref.noise_relmse():.2g}")
 
 
