@@ -15,8 +15,10 @@ from .results import Solution
 from .scene import Scene
 
 
-#: voxels per edge of a block of the coarse grid (empty-space skipping, splitting thick segments)
-BLOCK = 8
+#: voxels per edge of a block of the coarse grid (empty-space skipping, splitting thick segments):
+#: 2^BLOCK_BITS, a power of two, so that the march finds a voxel's block by a shift
+BLOCK_BITS = 3
+BLOCK = 1 << BLOCK_BITS
 #: an empty block of the coarse grid vouches for the blocks up to this many (less one) around it
 #: (renderer.skip_blocks), so a ray jumps over up to 2 SKIP_REACH - 1 blocks at once
 SKIP_REACH = 16
@@ -87,7 +89,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     seen = seen_voxels(med)
     blocks = med.derived("skip_blocks", lambda density: skip_blocks(densest_in_blocks(density, BLOCK)))
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
-              med.origin, med.voxel_size, lo, hi, blocks, BLOCK)
+              med.origin, med.voxel_size, lo, hi, blocks, BLOCK_BITS)
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
               np.ascontiguousarray(solution.irradiance, np.float64),
               np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_))
@@ -314,13 +316,13 @@ def occupied_box(mask: np.ndarray, margin: int) -> tuple[slice, slice, slice]:
 def crop_bundles(medium, grid, box) -> tuple[tuple, tuple]:
     """The render kernel's medium and grid bundles cut to the index ``box`` (constants stay
     constants; the origin moves to the box's first voxel)."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
     phi, phia, direct, phid, flux, lobe_cap = grid
     whole = all(b.stop - b.start == n for b, n in zip(box, density.shape))
     cut = (lambda a: a if a.size <= 1 or whole else np.ascontiguousarray(a[(Ellipsis,) + box]))
     start = np.array([b.start for b in box], np.float64)
     return ((cut(density), scale, cut(albedo), albedo_rgb, cut(g_grid), origin + start * voxel, voxel, lo, hi,
-             blocks, block), tuple(cut(f) for f in (phi, phia, direct, phid, flux)) + (lobe_cap,))
+             blocks, block_bits), tuple(cut(f) for f in (phi, phia, direct, phid, flux)) + (lobe_cap,))
 
 
 def gather_factor(medium, resolution: int) -> int:
@@ -352,11 +354,11 @@ def coarse_bundles(medium, grid, seen, factor: int) -> tuple[tuple, tuple, np.nd
     """The render kernel's medium and grid bundles on blocks of factor^3 voxels (block means;
     constants stay constants; the origin is the first block's centre), and the blocks the
     upsampling reads: those holding a seen voxel and their neighbours."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
     phi, phia, direct, phid, flux, lobe_cap = grid
     const = (lambda a: a if a.size == 1 else block_mean(a, factor))
     coarse_medium = (block_mean(density, factor), scale, const(albedo), albedo_rgb, const(g_grid),
-                     origin + 0.5 * (factor - 1) * voxel, voxel * factor, lo, hi, blocks, block)
+                     origin + 0.5 * (factor - 1) * voxel, voxel * factor, lo, hi, blocks, block_bits)
     coarse_grid = tuple(block_mean(f, factor) if f.size > 1 else f for f in (phi, phia, direct, phid, flux)) + (lobe_cap,)
     # the blocks holding a seen voxel and their 26 neighbours (the trilinear stencil): the same
     # one-block dilation voxels_seen makes of a density
