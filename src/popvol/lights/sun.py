@@ -102,6 +102,12 @@ class SunDomain(DirectionalDomain):
 
     a0: float = 1.0
 
+    @property
+    def unscattered(self) -> bool:
+        """Whether the domain keeps its light's unscattered part apart (a direct field): a
+        collimated sun does; a broad lobe (a0 < 1, an environment's light) does not."""
+        return self.a0 == 1.0
+
     def resample(self, medium, channel: int = 0):
         return resample_medium(medium, self, channel)
 
@@ -116,7 +122,7 @@ class SunDomain(DirectionalDomain):
         if method.isotropic == "diffusion" and method.solver != "ordinates":   # six ordinates walk it all
             # a broad lobe (an environment's light) has no direct field: its single scattering is
             # the walk's, so it is handed over later (docs/METHOD.md, "Hand-over")
-            scale = method.handover_scale if self.a0 == 1.0 else method.environment_handover_scale
+            scale = method.handover_scale if self.unscattered else method.environment_handover_scale
             handover = (scale, handover_factor(sigma_t, sigma_s, g, self.h))
         injection = np.full(self.shape[1:], self.h * self.h, np.float32)
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
@@ -128,7 +134,7 @@ class SunDomain(DirectionalDomain):
         """A collimated sun's unscattered fluence at the cell centres per unit irradiance
         (float32, the domain's shape; Eq. 22), lit with its own lobe by the renderer; None for
         an environment's light (a0 < 1)."""
-        return direct_fluence(sigma_t, self.h) if self.a0 == 1.0 else None
+        return direct_fluence(sigma_t, self.h) if self.unscattered else None
 
     def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
         """The diffusion grid is the domain itself, in blocks of diffusion_factor^3 cells."""
