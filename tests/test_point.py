@@ -8,7 +8,7 @@ from popvol.camera import Camera
 from popvol.lights.point import spherical_domain
 import twins as ref
 from popvol.kernels import spherical as KS
-from popvol.kernels.propagation import band_edges
+from popvol.kernels.propagation import band_edges, band_lanes
 from popvol.lights import PointLight
 from popvol.medium import Medium
 from popvol.pipeline import point_fields, solve, solve_light, voxels_seen
@@ -155,7 +155,8 @@ def test_spherical_sweep_kernel_equals_numpy_twin(where, forward, flip, handover
             anti = np.zeros((2,) + dom.shape[1:], np.float32)
             tally_b = np.zeros((len(bands) - 1, 5))
             KS.sweep_spherical_bands(Rx, Rax, *faces(dom, F), split_table32(), True, dom.full, forward, flip,
-                                     np.float32(w_min), inv_area, phi, phia, bands, halo, anti,
+                                     np.float32(w_min), inv_area, phi, phia, bands,
+                                     band_lanes(np.zeros(len(bands) - 1), np.diff(bands), 2), halo, anti,
                                      tally_b, handover, diffusive, Q, k_end)
             KS.deliver(Rx, Rax, bands, halo, anti)
             tally = tally_b[:, :4].sum(axis=0)

@@ -234,8 +234,9 @@ def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, ha
     bands = K.band_edges(shape[1])
     halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
     tally_b, tally = np.zeros((len(bands) - 1, 5)), np.zeros(4)
+    band_lane = K.band_lanes(np.zeros(len(bands) - 1), np.diff(bands), 2)
     pending = K.sweep(R, Ra, Th, Dh, table, rule == "moment", periodic, forward, flip, w_min, 2.0, phi,
-                      phia, bands, halo, tally_b, tally, handover, diffusive, Q)
+                      phia, bands, band_lane, halo, tally_b, tally, handover, diffusive, Q)
 
     R_r, Ra_r = W.astype(np.float64), Wa.astype(np.float64)
     phi_r, phia_r, tally_r = np.zeros(shape), np.zeros(shape), np.zeros(4)
@@ -248,6 +249,44 @@ def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, ha
     np.testing.assert_allclose(tally, tally_r, rtol=5e-5, atol=1e-7)
     assert pending == pytest.approx(pending_r, rel=5e-5)
     assert W.sum(dtype=np.float64) == pytest.approx(pending_r + tally_r.sum() + Q_r[0].sum(), rel=1e-9)
+
+
+def test_band_lanes_deal_the_work_longest_first():
+    """The longest-first greedy rule: each band to the lane with the least work so far."""
+    sent = np.array([0.0, 100.0, 0.0, 60.0, 50.0, 0.0])
+    lane = K.band_lanes(sent, np.zeros(6), 2)
+    load = np.bincount(lane, weights=sent, minlength=2)
+    assert sorted(load) == [100.0, 110.0]          # 100 | 60 + 50 (in order: 100, 90, 110)
+    assert lane[1] != lane[3] and lane[3] == lane[4]
+    # equal work: dealt in turn; visits count 1 / VISIT_COST of a send
+    assert list(K.band_lanes(np.zeros(5), np.full(5, 8.0), 2)) == [0, 1, 0, 1, 0]
+    assert list(K.band_lanes(np.array([0.0, 2.0]), np.array([3 * K.VISIT_COST, 0.0]), 2)) == [0, 1]
+    assert set(K.band_lanes(sent, np.zeros(6), 1)) == {0}
+
+
+@pytest.mark.parametrize("dealing", ["one lane", "in turn", "reversed", "three lanes"])
+def test_sweep_is_the_same_for_any_dealing_of_bands_to_lanes(dealing, rng):
+    """Bands are independent within a sweep (side parts crossing a band edge are parked), so
+    which lane sweeps which band changes nothing: bitwise the same fields and tallies."""
+    shape = (9, 50, 11)                                     # 4 bands: 16, 16, 16 and 2 rows
+    W, Wa, Th, Dh = random_state(rng, shape)
+    diffusive = hand_over_factors(rng, shape)
+    bands = K.band_edges(shape[1])
+    n_bands = len(bands) - 1
+    deal = {"one lane": np.zeros(n_bands, np.int64), "in turn": np.arange(n_bands) % 2,
+            "reversed": (np.arange(n_bands)[::-1] % 2), "three lanes": np.arange(n_bands) % 3}
+    out = {}
+    for name in ("one lane", dealing):
+        R, Ra = W.copy(), Wa.copy()
+        phi, phia = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
+        halo = np.zeros((n_bands, 2, 2, shape[0], shape[2]), np.float32)
+        tally_b, tally = np.zeros((n_bands, 5)), np.zeros(4)
+        Q = np.zeros((2,) + shape, np.float32)
+        pending = K.sweep(R, Ra, Th, Dh, split_table(), True, False, True, False, 0.0, 2.0, phi, phia,
+                          bands, deal[name].astype(np.int64), halo, tally_b, tally, 0.6, diffusive, Q)
+        out[name] = (R, Ra, phi, phia, tally_b, tally, np.array([pending]))
+    for a, b in zip(out["one lane"], out[dealing]):
+        assert np.array_equal(a, b)
 
 
 def _random_optics(rng, shape):

@@ -63,9 +63,7 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool | None =
     cam = scene.camera
     out = np.zeros((cam.height, cam.width, 3), np.float32)
     inputs = render_inputs(scene, solution, jitter, combined, skip)
-    # rows go to threads one at a time: rows through the medium cost far more than the sky's
-    with numba.parallel_chunksize(1):
-        render_kernel(*inputs, out)
+    render_kernel(*inputs, out, numba.get_num_threads())
     if not np.all(np.isfinite(out)):
         raise PopvolError("internal error: the rendered image has non-finite pixels; please report it "
                           f"with the scene ({scene.source})")

@@ -344,12 +344,14 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         bands = K.band_edges(shape[1])
         halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
         tally_b = np.zeros((len(bands) - 1, 5))
+        visited = np.diff(bands) * shape[0] * shape[2]
 
         def one_sweep(it, w_min):
-            # alternate +d / -d every sweep and the lateral order every second sweep
-            with numba.parallel_chunksize(1):     # bands to threads one at a time
-                left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2,
-                               w_min, inv_area, phi, phia, bands, halo, tally_b, tally, eps, diffusive, Q)
+            # alternate +d / -d every sweep and the lateral order every second sweep; the bands
+            # dealt to the threads by the work each did in the sweep before
+            band_lane = K.band_lanes(tally_b[:, 4], visited, numba.get_num_threads())
+            left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2, w_min,
+                           inv_area, phi, phia, bands, band_lane, halo, tally_b, tally, eps, diffusive, Q)
             return left, tally_b[:, 4].sum()
         in_flight, it, sent = sweep_until_converged(one_sweep, in_flight, target, cap, Th.size,
                                                     budget.injected, progress)

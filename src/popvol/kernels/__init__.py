@@ -10,3 +10,12 @@
 #: error_model="numpy" is what the parallel loop's body has. The output is bitwise that of the
 #: inlined helper.
 ON_ITS_OWN = dict(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+
+# Lanes. Numba's parallel loop gives each thread one contiguous block of its range (also under
+# numba.parallel_chunksize, with the OpenMP and workqueue layers: measured with Numba 0.68), which
+# suits loops of even cost. Where the cost is uneven (rows of an image, the walk's bands, where
+# the medium and the light are), a kernel runs ``prange(lanes)``, one lane per thread, and deals
+# the work to the lanes: the render kernel rows round-robin, the sweeps the bands by the work
+# each did in the sweep before (propagation.band_lanes). The caller passes the lanes
+# (numba.get_num_threads(): called inside a kernel it would stop Numba's caching). Which lane
+# does what never changes the result, only the time.

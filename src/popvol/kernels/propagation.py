@@ -200,12 +200,15 @@ def jacobi_gather(parts, Th, Dh, periodic, W_out, Wa_out, tally):
 # in ``halo`` and delivered after the sweep (it waits one sweep, like every pending packet);
 # everything else is deposited in place, so light can cross a whole band or the whole domain
 # along the sweep direction in one sweep. Band edges do not depend on the thread count, so
-# the result is the same on every machine. The callers hand bands to the threads one at a time
-# (``with numba.parallel_chunksize(1)``; inside jitted code it would stop Numba's caching):
-# where the light is, some bands have far more work than others, and a static split of the
-# bands would leave threads idle for much of a sweep.
+# the result is the same on every machine. Where the light is, some bands have far more work
+# than others, so the bands are not split among the threads in order (Numba's prange gives
+# each thread one contiguous block of its range): the caller deals them out to lanes, one lane
+# per thread, by the work each did in the previous sweep (:func:`band_lanes`).
 
 BAND_ROWS = 16
+#: a band's work is taken as its cells that sent plus its cells visited / VISIT_COST (a visit
+#: that finds too little pending is a load and a comparison; a send moves six parts)
+VISIT_COST = 8.0
 
 
 def band_edges(n_u: int) -> np.ndarray:
@@ -215,6 +218,30 @@ def band_edges(n_u: int) -> np.ndarray:
     if len(edges) > 2 and edges[-1] - edges[-2] < 2:
         edges.pop(-2)
     return np.asarray(edges, np.int64)
+
+
+def band_lanes(sent: np.ndarray, visited: np.ndarray, lanes: int) -> np.ndarray:
+    """int64 (n_bands,): the lane (0 .. lanes - 1, one per thread) that sweeps each band,
+    balancing the bands' work (cells that sent, ``sent``, plus ``visited`` / VISIT_COST, e.g.
+    from the previous sweep; float (n_bands,)) by the longest-first greedy rule: the bands, most
+    work first, each to the lane with the least so far. Equal work deals them out in turn. Which
+    lane sweeps a band does not change the result, only the time."""
+    work = np.asarray(sent, np.float64) + np.asarray(visited, np.float64) / VISIT_COST
+    load = np.zeros(max(int(lanes), 1))
+    lane = np.empty(len(work), np.int64)
+    for b in np.argsort(-work, kind="stable"):
+        lane[b] = int(np.argmin(load))
+        load[lane[b]] += work[b]
+    return lane
+
+
+@nb.njit(inline="always", cache=True)
+def lanes_of(band_lane):
+    """How many lanes ``band_lane`` (:func:`band_lanes`) deals the bands to."""
+    n = 0
+    for b in range(band_lane.shape[0]):
+        n = max(n, band_lane[b] + 1)
+    return n
 
 
 @nb.njit(inline="always", cache=True)
@@ -290,8 +317,9 @@ def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, ha
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
-                phia, bands, halo, tally_b, handover, diffusive, Q):
-    """One sweep over all slices (``forward``: k = 0, 1, ...), each band by its own thread;
+                phia, bands, band_lane, halo, tally_b, handover, diffusive, Q):
+    """One sweep over all slices (``forward``: k = 0, 1, ...), each band by one thread, the
+    lanes of ``band_lane`` (int64 (n_bands,), :func:`band_lanes`) in parallel;
     within a slice rows and columns run in increasing order, or decreasing if ``flip``.
     A cell sends only if its pending energy exceeds ``w_min`` (below it the energy stays pending,
     counted as in flight, and is sent once more has arrived: thresholded Gauss-Seidel, as in
@@ -309,43 +337,46 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
     number of cells that sent.
     """
     n0, n1, n2 = R.shape
-    for bb in nb.prange(bands.shape[0] - 1):
-        b = np.int64(bb)
-        lo = bands[b]
-        hi = bands[b + 1]
-        # the tallies of the first and second row of a pair; np.int64(0), not a constant 0, which
-        # Numba would type as a literal and so compile _send a second time for the first call
-        first = (0.0, 0.0, 0.0, 0.0, np.int64(0))
-        second = (0.0, 0.0, 0.0, 0.0, np.int64(0))
-        for step in range(n0):
-            k = step if forward else n0 - 1 - step
-            for si in range(0, hi - lo, 2):
-                i = hi - 1 - si if flip else lo + si
-                if si + 1 == hi - lo:               # an odd band's last row alone
-                    for sj in range(n2):
-                        j = n2 - 1 - sj if flip else sj
-                        first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                                      halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
-                    continue
-                i2 = i - 1 if flip else i + 1         # the second row, one column behind
-                j = n2 - 1 if flip else 0
-                first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                              halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
-                for sj in range(1, n2):
-                    j = n2 - 1 - sj if flip else sj
-                    j2 = j + 1 if flip else j - 1
+    for ll in nb.prange(lanes_of(band_lane)):
+        lane = np.int64(ll)     # prange indices are unsigned
+        for b in range(bands.shape[0] - 1):
+            if band_lane[b] != lane:
+                continue
+            lo = bands[b]
+            hi = bands[b + 1]
+            # the tallies of the first and second row of a pair; np.int64(0), not a constant 0, which
+            # Numba would type as a literal and so compile _send a second time for the first call
+            first = (0.0, 0.0, 0.0, 0.0, np.int64(0))
+            second = (0.0, 0.0, 0.0, 0.0, np.int64(0))
+            for step in range(n0):
+                k = step if forward else n0 - 1 - step
+                for si in range(0, hi - lo, 2):
+                    i = hi - 1 - si if flip else lo + si
+                    if si + 1 == hi - lo:               # an odd band's last row alone
+                        for sj in range(n2):
+                            j = n2 - 1 - sj if flip else sj
+                            first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
+                                          halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
+                        continue
+                    i2 = i - 1 if flip else i + 1         # the second row, one column behind
+                    j = n2 - 1 if flip else 0
                     first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
                                   halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
+                    for sj in range(1, n2):
+                        j = n2 - 1 - sj if flip else sj
+                        j2 = j + 1 if flip else j - 1
+                        first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
+                                      halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
+                        second = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
+                                       halo, handover, diffusive, Q, b, lo, hi, k, i2, j2, second)
+                    j = 0 if flip else n2 - 1
                     second = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                                   halo, handover, diffusive, Q, b, lo, hi, k, i2, j2, second)
-                j = 0 if flip else n2 - 1
-                second = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                               halo, handover, diffusive, Q, b, lo, hi, k, i2, j, second)
-        tally_b[b, REFLECTED] += first[0] + second[0]
-        tally_b[b, TRANSMITTED] += first[1] + second[1]
-        tally_b[b, SIDE_ESCAPED] += first[2] + second[2]
-        tally_b[b, ABSORBED] += first[3] + second[3]
-        tally_b[b, 4] += first[4] + second[4]
+                                   halo, handover, diffusive, Q, b, lo, hi, k, i2, j, second)
+            tally_b[b, REFLECTED] += first[0] + second[0]
+            tally_b[b, TRANSMITTED] += first[1] + second[1]
+            tally_b[b, SIDE_ESCAPED] += first[2] + second[2]
+            tally_b[b, ABSORBED] += first[3] + second[3]
+            tally_b[b, 4] += first[4] + second[4]
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
@@ -370,13 +401,14 @@ def deliver_halo(R, Ra, bands, halo):
 
 @nb.njit(fastmath=True, cache=True)
 def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi, phia,
-          bands, halo, tally_b, tally, handover, diffusive, Q):
-    """One Gauss-Seidel sweep (see above); adds the sweep's tallies to ``tally`` and returns
-    the energy still pending (arrived, before the receivers' half steps). tally_b[:, 4] then
-    holds how many cells sent, per band."""
+          bands, band_lane, halo, tally_b, tally, handover, diffusive, Q):
+    """One Gauss-Seidel sweep (see above), the bands dealt to lanes by ``band_lane``
+    (:func:`band_lanes`); adds the sweep's tallies to ``tally`` and returns the energy still
+    pending (arrived, before the receivers' half steps). tally_b[:, 4] then holds how many
+    cells sent, per band."""
     tally_b[:] = 0.0
     sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
-                phia, bands, halo, tally_b, handover, diffusive, Q)
+                phia, bands, band_lane, halo, tally_b, handover, diffusive, Q)
     deliver_halo(R, Ra, bands, halo)
     for b in range(tally_b.shape[0]):
         for c in range(4):

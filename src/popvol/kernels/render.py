@@ -748,9 +748,12 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
-def render_kernel(medium, lights, grid, spherical, view, camera, march, background, out):
+def render_kernel(medium, lights, grid, spherical, view, camera, march, background, out, lanes):
     """Render into ``out`` float32 (height, width, 3), linear radiance: per pixel the mean over
-    its samples of the march's L + T_v L_background (docs/METHOD.md Eq. 24).
+    its samples of the march's L + T_v L_background (docs/METHOD.md Eq. 24). Rows go to
+    ``lanes`` (numba.get_num_threads()) lanes round-robin, lane l rows l, l + lanes, ...: rows
+    through the medium cost far more than the sky's, and neighbouring rows about the same
+    (kernels/__init__.py, "lanes").
 
     medium: density float32 (nx, ny, nz); scale float64 (3,), sigma_t per channel = scale *
         density; albedo, g: float32 grids (1, 1, 1) or density-shaped; albedo_rgb float64 (3,),
@@ -796,7 +799,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     source, near = view
     o, basis, tan_half, width, height = camera
     step, spp, seed, jitter, skip, dense, coarse, edge = march
-    for py in nb.prange(height):
+    for lane in nb.prange(lanes):
         # The bundles are rebuilt here from their arrays, so that the helpers read the arrays
         # themselves: with the bundles as passed in, the march took and dropped references to
         # their arrays (atomic counts) at every sample, about 1.2x slower.
@@ -807,18 +810,19 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         view_ = (source, near)
         camera_ = (o, basis, tan_half, width, height)
         march_ = (step, spp, seed, jitter, skip, dense, coarse, edge)
-        for px in range(width):
-            acc0 = acc1 = acc2 = 0.0
-            for s in range(spp):
-                jx, jy, jt = pixel_sample(march_, px, py, s)
-                d = camera_ray(camera_, px + jx, py + jy)
-                t0, t1 = ray_box(o, d, lo, hi)
-                L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
-                                                   (t0, t1, step, jt, skip, dense, coarse, edge))
-                b0, b1, b2 = background_radiance(background, d)
-                acc0 += L0 + T0 * b0
-                acc1 += L1 + T1 * b1
-                acc2 += L2 + T2 * b2
-            out[py, px, 0] = acc0 / spp
-            out[py, px, 1] = acc1 / spp
-            out[py, px, 2] = acc2 / spp
+        for py in range(lane, height, lanes):
+            for px in range(width):
+                acc0 = acc1 = acc2 = 0.0
+                for s in range(spp):
+                    jx, jy, jt = pixel_sample(march_, px, py, s)
+                    d = camera_ray(camera_, px + jx, py + jy)
+                    t0, t1 = ray_box(o, d, lo, hi)
+                    L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
+                                                       (t0, t1, step, jt, skip, dense, coarse, edge))
+                    b0, b1, b2 = background_radiance(background, d)
+                    acc0 += L0 + T0 * b0
+                    acc1 += L1 + T1 * b1
+                    acc2 += L2 + T2 * b2
+                out[py, px, 0] = acc0 / spp
+                out[py, px, 1] = acc1 / spp
+                out[py, px, 2] = acc2 / spp

@@ -34,7 +34,7 @@ import numpy as np
 from . import ON_ITS_OWN
 from .cells import rates as cell_rates
 from .propagation import (ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap,
-                          split, total_energy)
+                          lanes_of, split, total_energy)
 from .sampling import trilinear, trilinear_clamped
 
 
@@ -339,9 +339,10 @@ def exit_shells(centre, frame, params, shape, lo, hi):
 
 @nb.njit(parallel=True, fastmath=True, cache=True)
 def sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area,
-                          phi, phia, bands, halo, anti, tally_b, handover, diffusive, Q, k_end):
-    """One sweep over the shells (``forward``: outward), each band of theta rows by its own
-    thread (as kernels.propagation.sweep_bands); cells with pending power <= w_min wait.
+                          phi, phia, bands, band_lane, halo, anti, tally_b, handover, diffusive, Q, k_end):
+    """One sweep over the shells (``forward``: outward), each band of theta rows by one
+    thread, the lanes of ``band_lane`` in parallel (as kernels.propagation.sweep_bands); cells
+    with pending power <= w_min wait.
 
     Fr, Ft, Fp: the faces' (T, D) (:func:`face_factors`). inv_area float32 (n_r, n_theta):
     1 / (r^2 Omega). halo float32 (n_bands, 2, 2, n_r, n_phi) parks side parts crossing into the
@@ -355,106 +356,109 @@ def sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip,
     n0, n1, n2 = R.shape
     half = n2 // 2
     one = np.float32(1.0)
-    for bb in nb.prange(bands.shape[0] - 1):
-        b = np.int64(bb)
-        lo = bands[b]
-        hi = bands[b + 1]
-        refl = 0.0
-        trans = 0.0
-        side_out = 0.0
-        absorbed = 0.0
-        sent = 0
-        # beyond the band's last k_end nothing ever arrives: those shells are not visited
-        n_k = 1
-        for i in range(lo, hi):
-            for j in range(n2):
-                n_k = max(n_k, k_end[i, j])
-        for step in range(n_k):
-            k = step if forward else n_k - 1 - step
-            for si in range(hi - lo):
-                i = hi - 1 - si if flip else lo + si
-                for sj in range(n2):
-                    j = n2 - 1 - sj if flip else sj
-                    w = R[k, i, j]
-                    if w <= w_min:
-                        continue
-                    wa = Ra[k, i, j]
-                    R[k, i, j] = 0.0
-                    Ra[k, i, j] = 0.0
-                    sent += 1
-                    if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
-                        continue
-                    phi[k, i, j] += w * inv_area[k, i]
-                    phia[k, i, j] += wa * inv_area[k, i]
-                    ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
-                    # radial: out one shell (or out of the domain), in one shell
-                    F = Fr[k + 1, i, j]
-                    if k + 1 < n0:
-                        absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k + 1, i, j, ef, efa, F)
-                    else:
-                        trans += ef * F[0]
-                        absorbed += ef * (one - F[0])
-                    if eb > 0.0:
-                        F = Fr[k, i, j]
-                        if k > 0:
-                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k - 1, i, j, eb, eba, F)
-                        elif full:                  # past the light, out of the antipodal cell
-                            ia = n1 - 1 - i
-                            ja = (j + half) % n2
-                            anti[0, ia, ja] += eb * F[0]
-                            anti[1, ia, ja] -= eba * F[0] * F[1]
-                            absorbed += eb * (one - F[0])
+    for ll in nb.prange(lanes_of(band_lane)):
+        lane = np.int64(ll)     # prange indices are unsigned
+        for b in range(bands.shape[0] - 1):
+            if band_lane[b] != lane:
+                continue
+            lo = bands[b]
+            hi = bands[b + 1]
+            refl = 0.0
+            trans = 0.0
+            side_out = 0.0
+            absorbed = 0.0
+            sent = 0
+            # beyond the band's last k_end nothing ever arrives: those shells are not visited
+            n_k = 1
+            for i in range(lo, hi):
+                for j in range(n2):
+                    n_k = max(n_k, k_end[i, j])
+            for step in range(n_k):
+                k = step if forward else n_k - 1 - step
+                for si in range(hi - lo):
+                    i = hi - 1 - si if flip else lo + si
+                    for sj in range(n2):
+                        j = n2 - 1 - sj if flip else sj
+                        w = R[k, i, j]
+                        if w <= w_min:
+                            continue
+                        wa = Ra[k, i, j]
+                        R[k, i, j] = 0.0
+                        Ra[k, i, j] = 0.0
+                        sent += 1
+                        if _hands_over(handover, diffusive, Q, k, i, j, w, wa):
+                            continue
+                        phi[k, i, j] += w * inv_area[k, i]
+                        phia[k, i, j] += wa * inv_area[k, i]
+                        ef, efa, es, esa, eb, eba = split(table, w, wa, moment)
+                        # radial: out one shell (or out of the domain), in one shell
+                        F = Fr[k + 1, i, j]
+                        if k + 1 < n0:
+                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k + 1, i, j, ef, efa, F)
                         else:
-                            refl += eb * F[0]
-                            absorbed += eb * (one - F[0])
-                    if es <= 0.0:
-                        continue
-                    # phi neighbours: same band (wrapping on a full sphere)
-                    for side in range(2):
-                        jj = j - 1 + 2 * side
-                        F = Fp[k, i, j + side]
-                        if jj < 0 or jj >= n2:
-                            if not full:
-                                side_out += es * F[0]
+                            trans += ef * F[0]
+                            absorbed += ef * (one - F[0])
+                        if eb > 0.0:
+                            F = Fr[k, i, j]
+                            if k > 0:
+                                absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k - 1, i, j, eb, eba, F)
+                            elif full:                  # past the light, out of the antipodal cell
+                                ia = n1 - 1 - i
+                                ja = (j + half) % n2
+                                anti[0, ia, ja] += eb * F[0]
+                                anti[1, ia, ja] -= eba * F[0] * F[1]
+                                absorbed += eb * (one - F[0])
+                            else:
+                                refl += eb * F[0]
+                                absorbed += eb * (one - F[0])
+                        if es <= 0.0:
+                            continue
+                        # phi neighbours: same band (wrapping on a full sphere)
+                        for side in range(2):
+                            jj = j - 1 + 2 * side
+                            F = Fp[k, i, j + side]
+                            if jj < 0 or jj >= n2:
+                                if not full:
+                                    side_out += es * F[0]
+                                    absorbed += es * (one - F[0])
+                                    continue
+                                jj = _wrap(jj, n2)
+                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, i, jj, es, esa, F)
+                        # theta neighbours: across a pole (same row), in the band, or parked
+                        for side in range(2):
+                            ii = i - 1 + 2 * side
+                            F = Ft[k, i + side, j]
+                            if ii < 0 or ii >= n1:
+                                if not full:
+                                    side_out += es * F[0]
+                                    absorbed += es * (one - F[0])
+                                    continue
+                                absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, i, (j + half) % n2,
+                                                        es, esa, F)
+                            elif ii >= lo and ii < hi:
+                                absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, ii, j, es, esa, F)
+                            elif k >= k_end[ii, j]:
+                                trans += es * F[0]
                                 absorbed += es * (one - F[0])
-                                continue
-                            jj = _wrap(jj, n2)
-                        absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, i, jj, es, esa, F)
-                    # theta neighbours: across a pole (same row), in the band, or parked
-                    for side in range(2):
-                        ii = i - 1 + 2 * side
-                        F = Ft[k, i + side, j]
-                        if ii < 0 or ii >= n1:
-                            if not full:
-                                side_out += es * F[0]
+                            else:
+                                halo[b, side, 0, k, j] += es * F[0]
+                                halo[b, side, 1, k, j] += esa * F[0] * F[1]
                                 absorbed += es * (one - F[0])
-                                continue
-                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, i, (j + half) % n2,
-                                                    es, esa, F)
-                        elif ii >= lo and ii < hi:
-                            absorbed, trans = _move(absorbed, trans, R, Ra, k_end, k, ii, j, es, esa, F)
-                        elif k >= k_end[ii, j]:
-                            trans += es * F[0]
-                            absorbed += es * (one - F[0])
-                        else:
-                            halo[b, side, 0, k, j] += es * F[0]
-                            halo[b, side, 1, k, j] += esa * F[0] * F[1]
-                            absorbed += es * (one - F[0])
-        tally_b[b, REFLECTED] += refl
-        tally_b[b, TRANSMITTED] += trans
-        tally_b[b, SIDE_ESCAPED] += side_out
-        tally_b[b, ABSORBED] += absorbed
-        tally_b[b, 4] += sent
+            tally_b[b, REFLECTED] += refl
+            tally_b[b, TRANSMITTED] += trans
+            tally_b[b, SIDE_ESCAPED] += side_out
+            tally_b[b, ABSORBED] += absorbed
+            tally_b[b, 4] += sent
 
 
 @nb.njit(fastmath=True, cache=True)
 def sweep(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area, phi, phia, bands,
-          halo, anti, tally_b, handover, diffusive, Q, k_end):
-    """One sweep (sweep_spherical_bands) and the delivery of parked parts; returns the power
-    pending. Call it with numba.parallel_chunksize(1), as kernels.propagation.sweep."""
+          band_lane, halo, anti, tally_b, handover, diffusive, Q, k_end):
+    """One sweep (sweep_spherical_bands, the bands dealt to lanes by ``band_lane``, as
+    kernels.propagation.sweep) and the delivery of parked parts; returns the power pending."""
     tally_b[:] = 0.0
     sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area,
-                          phi, phia, bands, halo, anti, tally_b, handover, diffusive, Q, k_end)
+                          phi, phia, bands, band_lane, halo, anti, tally_b, handover, diffusive, Q, k_end)
     deliver(R, Ra, bands, halo, anti)
     return total_energy(R)
 

@@ -233,11 +233,15 @@ class SphericalDomain:
         inv_area = self.inverse_area()
         k_end = self.exit_shells()
 
+        visited = np.array([(k_end[lo:hi].max(initial=1)) * (hi - lo) * shape[2]
+                            for lo, hi in zip(bands[:-1], bands[1:])], np.float64)
+
         def one_sweep(it, w_min):
-            with numba.parallel_chunksize(1):     # bands to threads one at a time
-                left = KS.sweep(R, Ra, *faces, table, moment, self.full, it % 2 == 0,
-                                it % 4 >= 2, np.float32(w_min), inv_area, phi, phia, bands, halo, anti,
-                                tally_b, eps, diffusive, Q, k_end)
+            # the bands dealt to the threads by the work each did in the sweep before
+            band_lane = KP.band_lanes(tally_b[:, 4], visited, numba.get_num_threads())
+            left = KS.sweep(R, Ra, *faces, table, moment, self.full, it % 2 == 0,
+                            it % 4 >= 2, np.float32(w_min), inv_area, phi, phia, bands, band_lane, halo, anti,
+                            tally_b, eps, diffusive, Q, k_end)
             tally[:] += tally_b[:, :4].sum(axis=0)
             return left, tally_b[:, 4].sum()
 
