@@ -53,3 +53,50 @@ def test_a_solve_is_the_same_with_one_or_two_threads():
     for name in ("phi", "phia", "direct", "phid", "flux"):
         assert np.array_equal(getattr(one, name), getattr(two, name)), name
     assert [d.result.iterations for d in one.domains] == [d.result.iterations for d in two.domains]
+
+
+def test_domains_solved_side_by_side_are_the_same_as_one_at_a_time(monkeypatch):
+    """pipeline.side_by_side: the sun's and the sky's domains solved two at a time, each on one
+    Numba thread of its own Python thread, give the bits of one at a time on two threads."""
+    import threading
+    import popvol.pipeline as P
+    scene = popvol.scene_from_dict({
+        "medium": {"type": "procedural", "resolution": 10, "scale": 30.0, "time": 1.0},
+        "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": 5.0},
+                   {"type": "sky", "lights": 3}],
+        "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "width": 32, "height": 18},
+        "method": {"resolution": 16}})
+    ran = []
+    solve_light = P.solve_light
+
+    def recorded(*args, **kwargs):
+        ran.append((threading.get_ident(), numba.get_num_threads()))
+        return solve_light(*args, **kwargs)
+    monkeypatch.setattr(P, "solve_light", recorded)
+    solutions = {}
+    for workers in (1, 2):
+        monkeypatch.setattr(P, "side_by_side", lambda cells, threads=None, w=workers: w)
+        ran.clear()
+        solutions[workers] = with_threads(2, lambda: popvol.solve(scene))
+        threads = {t for t, _ in ran}
+        assert len(ran) == 4 and len(threads) == workers
+        assert {n for _, n in ran} == {2 // workers}
+    one, two = solutions[1], solutions[2]
+    for name in ("phi", "phia", "direct", "phid", "flux"):
+        assert np.array_equal(getattr(one, name), getattr(two, name)), name
+    assert [(d.light_index, d.result.iterations) for d in one.domains] == \
+        [(d.light_index, d.result.iterations) for d in two.domains]
+
+
+def test_side_by_side_only_where_it_finishes_sooner():
+    """Side by side where the largest-first dealing beats one at a time on every thread, at
+    PARALLEL_EFFICIENCY: the bench's sun + 8 sky domains yes, a sun with one small domain no."""
+    from popvol.pipeline import side_by_side
+    sky = [576378, 57564, 59532, 57400, 52900, 56800, 49400, 52300, 49900]
+    assert side_by_side(sky, 2) == 2
+    assert side_by_side(sky[:2], 2) == 1           # the small one would wait for nothing
+    assert side_by_side([1000] * 4, 2) == 2 and side_by_side([1000] * 8, 8) == 8
+    assert side_by_side([1000] * 3, 2) == 2         # 2000 on one thread against 3000 on two
+    assert side_by_side([1000] * 3, 8) == 1         # three workers would leave two threads idle
+    assert side_by_side([1000] * 8, 4) == 4         # four workers of one thread each
+    assert side_by_side(sky, 1) == 1 and side_by_side([1000], 2) == 1

@@ -11,6 +11,7 @@ import json
 import math
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -129,10 +130,12 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
     tol = sc.method.tolerance
     with _progress() as bar:
         tasks = {}
+        new_task = threading.Lock()     # domains may be solved side by side (pipeline.side_by_side)
 
         def on_progress(light, it, residual):
-            if light not in tasks:
-                tasks[light] = bar.add_task(f"light {light}: propagating", total=1.0, info="")
+            with new_task:
+                if light not in tasks:
+                    tasks[light] = bar.add_task(f"light {light}: propagating", total=1.0, info="")
             frac = min(1.0, max(0.0, math.log(max(residual, 1e-300)) / math.log(tol)))
             bar.update(tasks[light], completed=frac, info=f"iteration {it}, in flight {residual:.1e}")
 

@@ -8,12 +8,19 @@ energy budget the same way for every kind, and gathers the fields the renderer r
 Grey media are linear in the light's power (the anisotropy merge is energy-weighted, so it is
 independent of scale): each domain is solved once for unit irradiance (or intensity) and the
 renderer scales it by the light's RGB power. A chromatic medium is solved once per channel.
+
+The domains are independent until their fields are gathered, so where it pays (a sky's many
+small domains: :func:`side_by_side`) they are solved side by side, each on a Python thread with
+its share of Numba's threads (the kernels release the GIL); every kernel gives the same bits on
+any number of threads, so the solution is the same either way.
 """
 from __future__ import annotations
 
 import dataclasses
 import time
+from concurrent.futures import ThreadPoolExecutor
 
+import numba
 import numpy as np
 
 from .diffusion import solve_diffusion, warm_guess
@@ -25,6 +32,13 @@ from .results import DomainSolution, PointFields, Solution
 from .walk import replace_direct
 
 
+#: one domain solved on n threads runs about PARALLEL_EFFICIENCY n times as fast as on one, for
+#: side_by_side (measured on 2 threads, solving side by side against one domain at a time: the
+#: bench's wdas_sun_sky x0.80, the demo x0.74, demo_dusk x0.94 and wdas_side x0.84 of the time,
+#: which these scenes' cells put at 0.65-0.8)
+PARALLEL_EFFICIENCY = 0.7
+
+
 def check_decay(medium, method) -> None:
     """decay = 'paper' raises g to a power: it needs g >= 0 everywhere."""
     if method.decay == "paper" and medium.g_min < 0:
@@ -33,8 +47,9 @@ def check_decay(medium, method) -> None:
 
 
 def solve_light(medium, light, method, progress=None, channel: int = 0, warm: DomainSolution | None = None,
-                transport=None) -> DomainSolution:
-    """Build the light's domain, resample the medium (colour ``channel``) into it, walk unit
+                transport=None, domain=None) -> DomainSolution:
+    """Build the light's domain (or take ``domain``, built by ``light.domain`` for ``transport``
+    and ``method``), resample the medium (colour ``channel``) into it, walk unit
     power and, with the diffusion stage, diffuse what was handed over. Light transport sees
     ``transport`` (None: ``medium.transport_medium()``, voxels thicker than MAX_TRANSPORT_DEPTH
     mean free paths capped); the unscattered light (``direct``) the medium itself.
@@ -46,7 +61,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     check_decay(medium, method)
     t0 = time.perf_counter()
     transport = medium.transport_medium() if transport is None else transport
-    domain = light.domain(medium, method)
+    domain = light.domain(medium, method) if domain is None else domain
     optics = domain.resample(transport, channel)
     t1 = time.perf_counter()
     walk = domain.walk(optics, method, progress)
@@ -71,6 +86,37 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     elif warm is not None:
         ds.warm_note = "cold: no diffusion stage (the walk always starts cold)"
     return ds
+
+
+def side_by_side(cells: list[int], threads: int | None = None) -> int:
+    """How many domains to solve at once, each on threads // that many of Numba's ``threads``
+    (None: numba.get_num_threads()): as many as there are (at most ``threads``) where the jobs
+    dealt out largest first, each to the worker with the least work so far, finish before the
+    same jobs one at a time on every thread would (a domain's cells standing for its work; one
+    domain on n > 1 threads runs PARALLEL_EFFICIENCY n times as fast as on one); else 1. The
+    result does not depend on it (every kernel gives the same bits on any number of threads)."""
+    threads = numba.get_num_threads() if threads is None else threads
+    workers = min(threads, len(cells))
+    if workers < 2:
+        return 1
+    load = [0] * workers
+    for c in sorted(cells, reverse=True):
+        load[load.index(min(load))] += c
+    speed = lambda n: 1.0 if n == 1 else PARALLEL_EFFICIENCY * n
+    return workers if max(load) / speed(threads // workers) < sum(cells) / speed(threads) else 1
+
+
+def run_jobs(fn, cells: list[int], workers: int) -> list:
+    """[fn(k) for k in range(len(cells))], with ``workers`` > 1 on as many Python threads, the
+    largest jobs (``cells``) first, each thread with threads // workers of Numba's threads
+    (numba.set_num_threads is per thread; the kernels release the GIL)."""
+    if workers < 2:
+        return [fn(k) for k in range(len(cells))]
+    order = sorted(range(len(cells)), key=lambda k: -cells[k])
+    each = max(numba.get_num_threads() // workers, 1)
+    with ThreadPoolExecutor(workers, initializer=numba.set_num_threads, initargs=(each,)) as pool:
+        done = dict(zip(order, pool.map(fn, order)))
+    return [done[k] for k in range(len(cells))]
 
 
 def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
@@ -212,8 +258,8 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     prev_domains, cold_note = warm_domains(warm, scene)
     needed = seen_voxels(med)
     transport = med.transport_medium()      # once for every light and channel
-    sols = []
-    seconds = dict.fromkeys(("resample", "propagate", "diffusion", "fields"), 0.0)
+    sols = {}
+    jobs = []                               # (light index, channel, light, previous domain, why cold)
     for i, light in enumerate(scene.lights):
         for ch in range(n_ch):
             prev = old.get((light.key(), ch))
@@ -223,10 +269,9 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                 if n_diffuse:
                     phid[i, ch], flux[i, ch] = reuse.phid[j, ch], reuse.flux[j, ch]
                 lobe_cap[i] = reuse.lobe_cap[j]
-                sols.append(dataclasses.replace(prev, light=light, light_index=i, reused=True, warm=False,
-                                                warm_note="reused" if warm is not None else ""))
+                sols[i, ch] = dataclasses.replace(prev, light=light, light_index=i, reused=True, warm=False,
+                                                  warm_note="reused" if warm is not None else "")
                 continue
-            cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
             w, note = None, cold_note
             if warm is not None and not cold_note:
                 w = prev_domains.get((i, ch))
@@ -236,30 +281,45 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                     w, note = None, f"cold: previous light {i} is a {w.light.type} light"
                 elif w.result.diffusion is None:
                     w, note = None, "cold: previous domain has no diffusion solve"
-            ds = solve_light(med, light, scene.method, cb, ch, w, transport)
-            if warm is not None and w is None:
-                ds.warm_note = note
-            ds.light_index = i
-            t0 = time.perf_counter()
-            if ds.result.flux is not None:
-                ordinate_fields(ds.result, ds.domain, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]),
-                                phid[i, ch], flux[i, ch])
-                lobe_cap[i] = 1.0
-            else:
-                ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
-            if ds.result.diffusion is not None:
-                d, grid = ds.result.diffusion, ds.diffusion_grid
-                # world component c of J = sum over the grid axes a of frame[a, c] J_a
-                J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
-                domain_to_world((d.phi, J[0], J[1], J[2]), grid.frame, grid.origin, d.h, med.origin,
-                                med.voxel_size, (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1], flux[i, ch, 2]),
-                                needed)
-            seconds["fields"] += time.perf_counter() - t0
-            seconds["resample"] += ds.seconds_resample
-            seconds["propagate"] += ds.result.seconds
-            seconds["diffusion"] += ds.result.seconds_diffusion
-            sols.append(ds)
+            jobs.append((i, ch, light, w, note))
+    domains = [light.domain(med, scene.method) for i, ch, light, w, note in jobs]
+
+    def solve_job(k):
+        """Job k: its domain solved and its fields mapped onto the medium's grid (their own
+        slices of the fields: jobs run side by side); returns (the solution, its fields' seconds)."""
+        i, ch, light, w, note = jobs[k]
+        cb = (lambda it, r, i=i: progress(i, it, r)) if progress else None
+        ds = solve_light(med, light, scene.method, cb, ch, w, transport, domains[k])
+        if warm is not None and w is None:
+            ds.warm_note = note
+        ds.light_index = i
+        t0 = time.perf_counter()
+        if ds.result.flux is not None:
+            ordinate_fields(ds.result, ds.domain, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]),
+                            phid[i, ch], flux[i, ch])
+            lobe_cap[i] = 1.0
+        else:
+            ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
+        if ds.result.diffusion is not None:
+            d, grid = ds.result.diffusion, ds.diffusion_grid
+            # world component c of J = sum over the grid axes a of frame[a, c] J_a
+            J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
+            domain_to_world((d.phi, J[0], J[1], J[2]), grid.frame, grid.origin, d.h, med.origin,
+                            med.voxel_size, (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1], flux[i, ch, 2]),
+                            needed)
+        return ds, time.perf_counter() - t0
+
+    # stage seconds are summed over the domains: solved side by side, they overlap
+    seconds = dict.fromkeys(("resample", "propagate", "diffusion", "fields"), 0.0)
+    cells = [d.n_cells for d in domains]
+    for (i, ch, *_), (ds, fields_seconds) in zip(jobs, run_jobs(solve_job, cells, side_by_side(cells))):
+        seconds["fields"] += fields_seconds
+        seconds["resample"] += ds.seconds_resample
+        seconds["propagate"] += ds.result.seconds
+        seconds["diffusion"] += ds.result.seconds_diffusion
+        sols[i, ch] = ds
     lights = scene.lights
+    sols = [sols[key] for key in sorted(sols)]         # in the order of the lights and channels
     return Solution(medium=med, domains=sols, phi=phi, phia=phia, direct=direct,
                     directions=np.array([l.render_direction for l in lights], np.float64).reshape(-1, 3),
                     positions=np.array([l.render_position for l in lights], np.float64).reshape(-1, 3),

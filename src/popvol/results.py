@@ -174,7 +174,8 @@ class Solution:
     points: PointFields
     phid: np.ndarray = field(default_factory=lambda: _empty(0, 1, 1, 1, 1))
     flux: np.ndarray = field(default_factory=lambda: _empty(0, 1, 3, 1, 1, 1))
-    seconds: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)   # per stage, summed over the domains (which
+    #                          overlap where solved side by side: pipeline.side_by_side)
     key: tuple = ()            # what it was solved for (pipeline.solve's reuse)
     lobe_cap: np.ndarray | None = None   # float64 (n_lights,): the largest anisotropy of each
     #                          light's phid lobe (None: MAX_DIFFUSE_ANISOTROPY for every light)

@@ -19,3 +19,6 @@ ON_ITS_OWN = dict(fastmath=True, error_model="numpy", forceinline=True, _nrt=Fal
 # each did in the sweep before (propagation.band_lanes). The caller passes the lanes
 # (numba.get_num_threads(): called inside a kernel it would stop Numba's caching). Which lane
 # does what never changes the result, only the time.
+
+# Every kernel releases the GIL (nogil=True), so that a scene's light domains can be solved side
+# by side on Python threads, each with its own share of Numba's threads (pipeline.side_by_side).

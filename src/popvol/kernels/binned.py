@@ -58,7 +58,7 @@ def arrive(W, ab, k, i, j, e, a, handover, diffusive, Q):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def inject(W, ab, e, a, handover, diffusive, Q):
     """The light injected through the face k = 0 arrives at the centres of slice 0: energy
     e[i, j], anisotropy a[i, j] (float64 (n_u, n_v)), each part as :func:`arrive` says."""
@@ -68,7 +68,7 @@ def inject(W, ab, e, a, handover, diffusive, Q):
                 arrive(W, ab, 0, i, j, e[i, j], a[i, j], handover, diffusive, Q)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def binned_send(W, ab, shares, Th, periodic, inv_area, phi, phia, tally):
     """Accumulate the wave into (phi, phia) and tally what the senders' half steps absorb and
     what leaves the domain (it crosses only the sender's half cell). ``shares`` float64 (n_b, 6):
@@ -99,7 +99,7 @@ def binned_send(W, ab, shares, Th, periodic, inv_area, phi, phia, tally):
     add_parts(part, tally)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def binned_gather(W, ab, shares, Th, Dh, periodic, handover, diffusive, Q, W_out, tally):
     """Every cell gathers, bin by bin, the parts its 6 neighbours send toward it (module
     docstring), hands over those below its threshold and bins the rest into ``W_out`` (zeroed

@@ -47,7 +47,7 @@ def rates(sigma_t, sigma_s, g, k, i, j, paper):
     return max(st - ss, 0.0), ss * (1.0 - gg)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def medium_factors(sigma_t, sigma_s, g, h, paper, Th, Dh):
     """Th = exp(-a h / 2) and Dh = exp(-d h / 2) per cell, (a, d) its :func:`rates` (so Dh =
     g^(sigma_s h / 2) with the ``paper`` decay, exp(-sigma_s h (1 - g) / 2) with the
@@ -62,7 +62,7 @@ def medium_factors(sigma_t, sigma_s, g, h, paper, Th, Dh):
                 Dh[k, i, j] = math.exp(-0.5 * h * d) if d > 0.0 else 1.0
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def handover_factor(sigma_t, sigma_s, g, s, out):
     """out = 1 - exp(-sigma_tr s), sigma_tr = a + d of the poisson :func:`rates` (sigma_a +
     sigma_s (1 - g)), per cell of float32 (n_d, n_u, n_v) sigma_t, sigma_s and g (s: the
@@ -77,7 +77,7 @@ def handover_factor(sigma_t, sigma_s, g, s, out):
                     out[k, i, j] = -math.expm1(-(a + d) * s)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def direct_fluence(sigma_t, h, out):
     """out = exp(-tau) per cell of float32 (n_d, n_u, n_v) sigma_t, tau = h (sum over j < k of
     sigma_t,j + sigma_t,k / 2) from the face k = 0 to the centre of cell k (Eq. 22; sigma_t
@@ -94,7 +94,7 @@ def direct_fluence(sigma_t, h, out):
                 cum[j] = c
 
 
-@nb.njit(parallel=True, cache=True)
+@nb.njit(parallel=True, cache=True, nogil=True)
 def hand_over_pending(W, Wa, Th, Dh, diffusive, Q):
     """When the sweeps stop, each packet (W, Wa) pending where ``diffusive`` > 0 takes its cell's
     half step (power W Th, moment Wa Th Dh), is added to Q[0], Q[1] and is zeroed; float32

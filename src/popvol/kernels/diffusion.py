@@ -56,7 +56,7 @@ def _balance(x, D, sah3, mask, h, k, i, j, bw):
     return diag, acc
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def apply(x, D, sah3, mask, h, out, bw):
     """out = A x (zero outside the region). x, out float32/64; D, sah3, bw float32; mask bool."""
     n0, n1, n2 = x.shape
@@ -71,7 +71,7 @@ def apply(x, D, sah3, mask, h, out, bw):
                     out[k, i, j] = 0.0
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def diagonal(D, sah3, mask, h, out, bw):
     """The diagonal of A (1 outside the region, so that it can be divided by)."""
     n0, n1, n2 = D.shape
@@ -85,7 +85,7 @@ def diagonal(D, sah3, mask, h, out, bw):
                     out[k, i, j] = 1.0
 
 
-@nb.njit(parallel=True, fastmath=False, cache=True)
+@nb.njit(parallel=True, fastmath=False, cache=True, nogil=True)
 def dot(a, b):
     """a . b of two 3-D arrays, in float64, summed in a fixed order (kernels/reduction.py; not
     fastmath, so that compiled and cached code agree)."""
@@ -99,7 +99,7 @@ def dot(a, b):
     return ordered_sum(part)
 
 
-@nb.njit(parallel=True, fastmath=False, cache=True)
+@nb.njit(parallel=True, fastmath=False, cache=True, nogil=True)
 def cg_update(x, r, p, Ap, M, alpha, z):
     """x += alpha p; r -= alpha Ap; z = r / M. Returns (r . z, r . r), summed as :func:`dot`."""
     part = np.empty((2, x.shape[0]))
@@ -120,7 +120,7 @@ def cg_update(x, r, p, Ap, M, alpha, z):
     return ordered_sum(part[0]), ordered_sum(part[1])
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def cg_direction(p, z, beta):
     """p = z + beta p."""
     for kk in nb.prange(p.shape[0]):
@@ -130,7 +130,7 @@ def cg_direction(p, z, beta):
                 p[k, i, j] = z[k, i, j] + beta * p[k, i, j]
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def leaks(phi, D, mask, h, bw):
     """Power [W] leaving the region: (through face k = 0, through k = n_d - 1, through the 4
     lateral faces of the domain, into cells outside the region)."""
@@ -167,7 +167,7 @@ def leaks(phi, D, mask, h, bw):
 BINOMIAL = (0.0625, 0.25, 0.375, 0.25, 0.0625)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _binomial(src, dst, axis):
     """dst = src filtered by [1 4 6 4 1] / 16 along ``axis`` (zero outside the grid)."""
     n0, n1, n2 = src.shape
@@ -209,7 +209,7 @@ def _gradient(m, k, i, j, axis):
     return d / (hi - lo)
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def boundary_weight(mask, out):
     """out float32 = 1 / |n|_1 of the region's smoothed surface in region cells (see
     diffusion.boundary_weight), 1 elsewhere."""
@@ -221,7 +221,7 @@ def boundary_weight(mask, out):
     _weights(mask, src, out)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _weights(mask, m, out):
     n0, n1, n2 = m.shape
     for kk in nb.prange(n0):

@@ -64,7 +64,7 @@ def _linear_stencil(u, nu):
     return True, i0, min(i0 + 1, nu - 1), u - i0
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def _axis_stencils(offset, n):
     """The linear stencils (:func:`_linear_stencil`) at u = i + offset, i = 0 .. n - 1: (inside
     bool (n,), i0 int64 (n,), i1 int64 (n,), fu float64 (n,)). The point upstream of every cell of
@@ -106,7 +106,7 @@ def mean_inverse_square(r, R):
     return 3.0 / (4.0 * r * R ** 3) * (2.0 * r * R + (R * R - r * r) * log)
 
 
-@nb.njit(**ON_ITS_OWN)
+@nb.njit(**ON_ITS_OWN, nogil=True)
 def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffuse, cell_radius):
     """Row m of ``lobes`` (:func:`emission_lobes`)."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
@@ -153,7 +153,7 @@ def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffu
                     lobes[m, k + kind, 4 + colour] = wk * power[l, colour] if on else 0.0
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     """Fill ``lobes`` float32 (M, K, 7) with the in-scattered light at the centre x of each cell
     cells[m] (int64 (M, 3) indices into the bundles' grid) as K = n_lights x n_channels x 3
@@ -173,7 +173,7 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
         cell_lobes(medium, lights, grid, spherical, cells, lobes, np.int64(m), n_ch, has_diffuse, cell_radius)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
     """Add to ``out`` float32 (lanes, nx, ny, nz, C) the gathered L_s / sigma_s toward the
     camera (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
@@ -198,7 +198,7 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
             _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def eye_directions(medium, eye, needed):
     """float64 (nx, ny, nz, 3): the unit vector from each voxel centre toward ``eye`` where
     ``needed`` (0 elsewhere), made once for all the directions of a gather."""
@@ -219,7 +219,7 @@ def eye_directions(medium, eye, needed):
     return out
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
     """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
     weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight

@@ -37,7 +37,7 @@ from .reduction import add_parts
 PF, PS, PB, MF, MS, MB, MJ = range(7)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates_step(W, Wa, Th, Dh, table, inv_area, phi, F, W_out, Wa_out, tally):
     """Send every pending packet one cell (module docstring) into ``W_out``, ``Wa_out`` (added
     to; the caller zeroes them), accumulating (phi, F) and the tallies. Slices k = r, r + 3,

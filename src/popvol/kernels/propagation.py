@@ -87,7 +87,7 @@ def _wrap(i, n):
 # Jacobi wavefront: every iteration moves every packet by exactly one cell.
 # ---------------------------------------------------------------------------------------------
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out, tally,
                 handover, diffusive, Q):
     """Accumulate the current wave into (phi, phia) and split every packet.
@@ -144,7 +144,7 @@ def jacobi_send(W, Wa, Th, Dh, table, moment, periodic, inv_area, phi, phia, out
     add_parts(part, tally)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def jacobi_gather(parts, Th, Dh, periodic, W_out, Wa_out, tally):
     """Every cell gathers the parts its 6 neighbours sent toward it (supplement Eq. 9) and
     applies its own half step. Race-free (each cell writes only itself). Returns the energy
@@ -251,7 +251,7 @@ def _add(R, Ra, k, i, j, e, ea):
     Ra[k, i, j] += ea
 
 
-@nb.njit(**ON_ITS_OWN)
+@nb.njit(**ON_ITS_OWN, nogil=True)
 def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, halo, handover,
           diffusive, Q, b, lo, hi, k, i, j, tallies):
     """Cell (k, i, j) of band b (rows lo .. hi - 1) sends what has arrived, if it exceeds w_min:
@@ -316,7 +316,7 @@ def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, ha
     return refl, trans, side_out, absorbed, sent
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
                 phia, bands, band_lane, halo, tally_b, handover, diffusive, Q):
     """One sweep over all slices (``forward``: k = 0, 1, ...), each band by one thread, the
@@ -380,7 +380,7 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
             tally_b[b, 4] += first[4] + second[4]
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def deliver_halo(R, Ra, bands, halo):
     """Move the side parts parked in ``halo`` into the neighbouring bands' edge rows (wrapping
     around the lateral faces when periodic; what left the domain never entered the halo).
@@ -400,7 +400,7 @@ def deliver_halo(R, Ra, bands, halo):
                         halo[b, side, 1, k, j] = 0.0
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi, phia,
           bands, band_lane, halo, tally_b, tally, handover, diffusive, Q):
     """One Gauss-Seidel sweep (see above), the bands dealt to lanes by ``band_lane``
@@ -417,7 +417,7 @@ def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area
     return total_energy(R)
 
 
-@nb.njit(parallel=True, fastmath=False, cache=True)
+@nb.njit(parallel=True, fastmath=False, cache=True, nogil=True)
 def total_energy(x):
     """Sum of a 3-D float32 array in float64 (parallel over the first axis; the same bits with
     any number of threads and in compiled or cached code, kernels/reduction.py)."""

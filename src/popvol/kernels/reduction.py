@@ -20,7 +20,7 @@ cached, with it.
 import numba as nb
 
 
-@nb.njit(fastmath=False, cache=True)
+@nb.njit(fastmath=False, cache=True, nogil=True)
 def ordered_sum(part):
     """Sum of a 1-D float array in index order."""
     total = 0.0
@@ -29,7 +29,7 @@ def ordered_sum(part):
     return total
 
 
-@nb.njit(fastmath=False, cache=True)
+@nb.njit(fastmath=False, cache=True, nogil=True)
 def add_parts(part, tally):
     """tally[c] += the ordered sum of row c of ``part`` (per-slice partial sums), for every c."""
     for c in range(part.shape[0]):

@@ -69,7 +69,7 @@ def interpolate(grid, corners):
     return (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def resample(grid, inv_voxel, grid_origin, frame, dom_origin, h, shape, clamp, out):
     """Sample ``grid`` (world voxel grid) at the centres of a light domain's cells.
 
@@ -119,7 +119,7 @@ def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, nee
                      tuple(outs) + tuple(outs[:1]) * pad, needed)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _domain_to_world(fields, n_fields, frame, dom_origin, h, world_origin, voxel, outs, needed):
     """:func:`domain_to_world` of the first ``n_fields`` of ``fields`` into as many ``outs``
     (both tuples of MAX_WORLD_FIELDS arrays)."""
@@ -149,7 +149,7 @@ def _domain_to_world(fields, n_fields, frame, dom_origin, h, world_origin, voxel
                     outs[4][x, y, z] = interpolate(fields[4], corners)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def block_sums(x, factor, held, out):
     """out (m, bx, by, bz): the sum of x (m, nx, ny, nz) over blocks of factor^3 voxels, b =
     ceil(n / factor) per axis, divided by the voxels the block holds if ``held`` (the mean; a
@@ -190,7 +190,7 @@ def block_sums(x, factor, held, out):
                 out[k, i, j, l] = acc[j, l] / count
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def upsample_blocks(coarse, factor, needed, out):
     """out float32 (nx, ny, nz, C) at the voxels where ``needed``: the trilinear value of
     ``coarse`` (bx, by, bz, C), the values at the centres of blocks of factor^3 voxels (block b's
@@ -214,7 +214,7 @@ def upsample_blocks(coarse, factor, needed, out):
                     out[i, j, k, ch] = (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def densest_near_blocks(density, block, out):
     """out float32 (ceil(nx / block), ...): the largest density within one voxel of each block
     of block^3 voxels, i.e. over voxels [block b - 1, block (b + 1) + 1] along each axis, within

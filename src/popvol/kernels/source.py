@@ -20,7 +20,7 @@ import numpy as np
 from .render import lobe_toward, walk_lobes
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def in_scattering_source(medium, lights, grid, spherical, eye, needed, out):
     """Add to ``out`` float32 (nx, ny, nz, 3) at the voxels where ``needed`` (bool (nx, ny, nz))
     L_s / sigma_s toward the camera at ``eye`` (float64 (3,)) of every term lit on the medium's

@@ -47,7 +47,7 @@ def _local(frame, r, st, ct, sp, cp):
     return x, y, z
 
 
-@nb.njit(**ON_ITS_OWN)
+@nb.njit(**ON_ITS_OWN, nogil=True)
 def _one(medium, k, i, j):
     """The rates (kernels.cells.rates) of cell (k, i, j): what a part leaving the domain across
     its face meets. medium: (sigma_t, sigma_s, g, paper)."""
@@ -55,7 +55,7 @@ def _one(medium, k, i, j):
     return cell_rates(sigma_t, sigma_s, g, k, i, j, paper)
 
 
-@nb.njit(**ON_ITS_OWN)
+@nb.njit(**ON_ITS_OWN, nogil=True)
 def _two(medium, k, i, j, k2, i2, j2):
     """The rates of cell (k, i, j) plus those of cell (k2, i2, j2): what a part crossing the
     face between them meets.
@@ -86,7 +86,7 @@ def empty_faces(shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             np.empty((n0, n1, n2 + 1, 2), np.float32))
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover):
     """The transmittance and decay of a transfer across each face, (T, D) in the last axis of
     Fr float32 (n_r + 1, n_theta, n_phi, 2), Ft (n_r, n_theta + 1, n_phi, 2) and Fp (n_r,
@@ -152,7 +152,7 @@ def face_factors(sigma_t, sigma_s, g, params, paper, full, Fr, Ft, Fp, handover)
                 handover[k, i, j] = f
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def direct_fluence(sigma_t, params, out):
     """``out`` float32 (the domain's shape): r^2 phi_dir = exp(-tau) at each cell centre per
     unit intensity, tau = sigma_t integrated along the ray from the inner sphere to the centre,
@@ -174,7 +174,7 @@ def direct_fluence(sigma_t, params, out):
                 seen[j] = math.exp(-tau[j])
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def resample_spherical(grid, inv_voxel, grid_origin, centre, frame, params, shape, clamp, out):
     """Sample ``grid`` (a world voxel grid) at the centres of a spherical domain's cells into
     ``out`` float32 ``shape``; params = (r0, dr, theta0, dtheta, phi0, dphi). ``clamp``: clamp
@@ -219,7 +219,7 @@ def spherical_index(centre, frame, params, full, wx, wy, wz):
     return q0, q1, q2, r
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def splat_to_grid(Q, centre, frame, params, grid_origin, h, grid_frame, region, out):
     """Add each spherical cell's power Q (n_r, n_theta, n_phi) to the cell of a rectilinear
     domain (frame rows d, u, v, corner ``grid_origin``, cubic cells h; ``out`` its shape) that
@@ -301,7 +301,7 @@ def _gap(x, lo, hi):
 EXIT_MARGIN = 2.0
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def exit_shells(centre, frame, params, shape, lo, hi):
     """int32 (n_theta, n_phi): per ray of cells (i, j), the first shell k_end from which every
     cell's centre lies farther than EXIT_MARGIN cell diagonals (dr, r dtheta, r sin(theta) dphi)
@@ -337,7 +337,7 @@ def exit_shells(centre, frame, params, shape, lo, hi):
     return out
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area,
                           phi, phia, bands, band_lane, halo, anti, tally_b, handover, diffusive, Q, k_end):
     """One sweep over the shells (``forward``: outward), each band of theta rows by one
@@ -451,7 +451,7 @@ def sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip,
             tally_b[b, 4] += sent
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def sweep(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area, phi, phia, bands,
           band_lane, halo, anti, tally_b, handover, diffusive, Q, k_end):
     """One sweep (sweep_spherical_bands, the bands dealt to lanes by ``band_lane``, as
@@ -463,7 +463,7 @@ def sweep(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip, w_min, inv_area
     return total_energy(R)
 
 
-@nb.njit(fastmath=True, cache=True)
+@nb.njit(fastmath=True, cache=True, nogil=True)
 def deliver(R, Ra, bands, halo, anti):
     """After a sweep: side parts parked at band edges go to their rows (bands never wrap in
     theta), and what passed the light goes to shell 0."""
