@@ -27,6 +27,7 @@ compiles the kernels and fills the caches.
 """
 from __future__ import annotations
 
+import ctypes
 import gc
 import importlib.metadata
 import importlib.resources
@@ -110,6 +111,16 @@ def _status_kb(key: str) -> int | None:
     return int(m.group(1)) if m else None
 
 
+def _trim_heap() -> None:
+    """Hand the C heap's free memory back to the system (glibc's malloc_trim; nothing elsewhere),
+    so that a row's peak does not carry what earlier rows freed but the allocator kept (arenas
+    of the threads that solved light domains side by side)."""
+    try:
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def _reset_peak() -> bool:
     """Reset this process's resident-set high-water mark (Linux >= 4.0); False if not possible."""
     try:
@@ -125,6 +136,7 @@ class _Peak:
 
     def __enter__(self):
         gc.collect()
+        _trim_heap()
         self.per_row = _reset_peak()
         self.base = _status_kb("VmRSS")
         return self
@@ -143,8 +155,9 @@ class _Peak:
 
 
 MEMORY_METHOD = ("peak_rss_mb: the process's resident-set high-water mark (VmHWM) over the row's "
-                 "timed runs, reset before the row (/proc/self/clear_refs); it includes the "
-                 "interpreter, NumPy, Numba and the compiled kernels, rss_base_mb at the reset")
+                 "timed runs, reset before the row (/proc/self/clear_refs) once the heap's free "
+                 "memory is handed back (malloc_trim); it includes the interpreter, NumPy, Numba "
+                 "and the compiled kernels, rss_base_mb at the reset")
 MEMORY_FALLBACK = "peak_rss_mb: ru_maxrss, the peak of the whole process up to the row's end"
 
 
