@@ -117,8 +117,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
             solution.cache["gather"] = kept
         gathered = gather(*args[:3], eye, seen, m.gather, factor, gather_cap(cam), state=kept[2])
         if not own.all():                 # the others' light, all of it, from their lobes
-            others = lights[:2] + (lights[2] * ~own[:, None],) + lights[3:]
-            in_scattering_source(medium, others, grid, spherical, eye, seen, gathered)
+            others, (others_grid, others_spherical) = only_lights(~own, lights, grid, spherical)
+            in_scattering_source(medium, others, others_grid, others_spherical, eye, seen, gathered)
         solution = solution.single_scattering()
         combined = True
     grid, spherical = field_bundles(solution)
@@ -167,11 +167,15 @@ def field_bundles(solution: Solution) -> tuple[tuple, tuple]:
 def only_lights(keep: np.ndarray, lights: tuple, grid: tuple, spherical: tuple) -> tuple[tuple, tuple]:
     """The kernels' lights bundle and (grid, spherical) bundles of the lights where ``keep``
     (bool (n_lights,)): each per-light array's rows (the diffusion fields' only if there are
-    any; the point lights' flat field array as it is, its offsets picked)."""
+    any; the point lights' flat field array as it is, its offsets picked); views, not copies,
+    where the lights kept are consecutive (a sun before a sky's lights, or the sky after it)."""
     phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
     if keep.all():
         return lights, (grid, spherical)
+    kept = np.flatnonzero(keep)
+    if len(kept) and kept[-1] - kept[0] == len(kept) - 1:
+        keep = slice(kept[0], kept[-1] + 1)
     rows = (lambda a: a[keep] if a.shape[0] else a)
     return (tuple(a[keep] for a in lights),
             ((phi[keep], phia[keep], direct[keep], rows(phid), rows(flux), lobe_cap[keep]),
