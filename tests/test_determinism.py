@@ -100,3 +100,24 @@ def test_side_by_side_only_where_it_finishes_sooner():
     assert side_by_side([1000] * 3, 8) == 1         # three workers would leave two threads idle
     assert side_by_side([1000] * 8, 4) == 4         # four workers of one thread each
     assert side_by_side(sky, 1) == 1 and side_by_side([1000], 2) == 1
+
+
+def test_a_failing_domain_stops_the_others_side_by_side():
+    """run_jobs: a job's error is raised, and jobs not yet started are dropped, not run."""
+    import threading
+    import time
+    from popvol.pipeline import run_jobs
+    started = []
+    lock = threading.Lock()
+
+    def job(k):
+        with lock:
+            started.append(k)
+        if k == 0:
+            raise popvol.PopvolError("job 0 failed")
+        time.sleep(0.05)
+        return k
+    with pytest.raises(popvol.PopvolError, match="job 0 failed"):
+        run_jobs(job, [100, 90, 80, 70, 60, 50, 40, 30], 2)
+    assert 0 in started and len(started) < 8
+    assert run_jobs(lambda k: k * k, [1, 5, 3], 2) == [0, 1, 4]      # results in the jobs' order

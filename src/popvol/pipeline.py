@@ -109,14 +109,17 @@ def side_by_side(cells: list[int], threads: int | None = None) -> int:
 def run_jobs(fn, cells: list[int], workers: int) -> list:
     """[fn(k) for k in range(len(cells))], with ``workers`` > 1 on as many Python threads, the
     largest jobs (``cells``) first, each thread with threads // workers of Numba's threads
-    (numba.set_num_threads is per thread; the kernels release the GIL)."""
+    (numba.set_num_threads is per thread; the kernels release the GIL). A job's error (or
+    Ctrl-C) is raised once the jobs running finish; the jobs not started are dropped."""
     if workers < 2:
         return [fn(k) for k in range(len(cells))]
-    order = sorted(range(len(cells)), key=lambda k: -cells[k])
     each = max(numba.get_num_threads() // workers, 1)
-    with ThreadPoolExecutor(workers, initializer=numba.set_num_threads, initargs=(each,)) as pool:
-        done = dict(zip(order, pool.map(fn, order)))
-    return [done[k] for k in range(len(cells))]
+    pool = ThreadPoolExecutor(workers, initializer=numba.set_num_threads, initargs=(each,))
+    try:
+        futures = {k: pool.submit(fn, k) for k in sorted(range(len(cells)), key=lambda k: -cells[k])}
+        return [futures[k].result() for k in range(len(cells))]
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
