@@ -100,6 +100,9 @@ def test_side_by_side_only_where_it_finishes_sooner():
     assert side_by_side([1000] * 3, 8) == 1         # three workers would leave two threads idle
     assert side_by_side([1000] * 8, 4) == 4         # four workers of one thread each
     assert side_by_side(sky, 1) == 1 and side_by_side([1000], 2) == 1
+    # not where the two largest domains would not fit in memory together (64 bytes a cell)
+    assert side_by_side([10**6] * 4, 2, memory=2 * 64 * 10**6 / 0.8) == 2
+    assert side_by_side([10**6] * 4, 2, memory=1.9 * 64 * 10**6 / 0.8) == 1
 
 
 def test_a_failing_domain_stops_the_others_side_by_side():

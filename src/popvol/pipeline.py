@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from .diffusion import solve_diffusion, warm_guess
-from .domains import check_memory, small_pages
+from .domains import available_memory, check_memory, small_pages
 from .errors import PopvolError
 from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
@@ -37,6 +37,9 @@ from .walk import replace_direct
 #: bench's wdas_sun_sky x0.80, the demo x0.74, demo_dusk x0.94 and wdas_side x0.84 of the time,
 #: which these scenes' cells put at 0.65-0.8)
 PARALLEL_EFFICIENCY = 0.7
+#: a domain's working set per cell, at most (lights.point.BYTES_PER_SPHERICAL_CELL; a box
+#: domain's, domains.BYTES_PER_DOMAIN_CELL, is less)
+BYTES_PER_CELL = 4 * 16
 
 
 def check_decay(medium, method) -> None:
@@ -88,16 +91,21 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     return ds
 
 
-def side_by_side(cells: list[int], threads: int | None = None) -> int:
+def side_by_side(cells: list[int], threads: int | None = None, memory: float | None = None) -> int:
     """How many domains to solve at once, each on threads // that many of Numba's ``threads``
     (None: numba.get_num_threads()): as many as there are (at most ``threads``) where the jobs
     dealt out largest first, each to the worker with the least work so far, finish before the
     same jobs one at a time on every thread would (a domain's cells standing for its work; one
-    domain on n > 1 threads runs PARALLEL_EFFICIENCY n times as fast as on one); else 1. The
-    result does not depend on it (every kernel gives the same bits on any number of threads)."""
+    domain on n > 1 threads runs PARALLEL_EFFICIENCY n times as fast as on one) and the largest
+    of them fit in 80 % of ``memory`` bytes together (None: the memory available now; each cell
+    at BYTES_PER_CELL); else 1. The result does not depend on it (every kernel gives the same
+    bits on any number of threads)."""
     threads = numba.get_num_threads() if threads is None else threads
     workers = min(threads, len(cells))
     if workers < 2:
+        return 1
+    memory = available_memory() if memory is None else memory
+    if sum(sorted(cells, reverse=True)[:workers]) * BYTES_PER_CELL > 0.8 * memory:
         return 1
     load = [0] * workers
     for c in sorted(cells, reverse=True):
