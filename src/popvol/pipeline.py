@@ -51,8 +51,8 @@ def check_decay(medium, method) -> None:
 
 def solve_light(medium, light, method, progress=None, channel: int = 0, warm: DomainSolution | None = None,
                 transport=None, domain=None) -> DomainSolution:
-    """Build the light's domain (or take ``domain``, built by ``light.domain`` for ``transport``
-    and ``method``), resample the medium (colour ``channel``) into it, walk unit
+    """Build the light's domain (or take ``domain``, ``light.domain(medium, method)`` built
+    before), resample the medium (colour ``channel``) into it, walk unit
     power and, with the diffusion stage, diffuse what was handed over. Light transport sees
     ``transport`` (None: ``medium.transport_medium()``, voxels thicker than MAX_TRANSPORT_DEPTH
     mean free paths capped); the unscattered light (``direct``) the medium itself.

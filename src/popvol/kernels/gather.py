@@ -106,7 +106,7 @@ def mean_inverse_square(r, R):
     return 3.0 / (4.0 * r * R ** 3) * (2.0 * r * R + (R * R - r * r) * log)
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffuse, cell_radius):
     """Row m of ``lobes`` (:func:`emission_lobes`)."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium

@@ -251,7 +251,7 @@ def _add(R, Ra, k, i, j, e, ea):
     Ra[k, i, j] += ea
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, halo, handover,
           diffusive, Q, b, lo, hi, k, i, j, tallies):
     """Cell (k, i, j) of band b (rows lo .. hi - 1) sends what has arrived, if it exceeds w_min:

@@ -122,7 +122,7 @@ def hash_uniform(seed, x, y, s, dim):
     return (h >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def point_lookup(fields, off, shape, q0, q1, q2, full):
     """(r^2 phi, r^2 phia, r^2 phi_dir) of a point light's spherical block (fields[:, off:], C-ordered
     ``shape``) at continuous cell index (q0, q1, q2): trilinear, clamped in r and theta,
@@ -231,7 +231,7 @@ def camera_ray(camera, u, v):
     return dx / norm, dy / norm, dz / norm
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def light_geometry(lights, spherical, l, x, d):
     """Light l seen from the sample x on the camera ray d: (is_point, mu, 1/r^2, q0, q1, q2) with
     mu = d_l . (-d) (d_l the direction the light travels: a sun's, or (x - p_l) / r from a point
@@ -320,7 +320,7 @@ def lobe_toward(pd, jx, jy, jz, d0, d1, d2, g, cap):
     return max(pd, 0.0) * f_hg(mu, g_d)
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def diffuse_lobe(phid, flux, corners, d, g, cap):
     """:func:`lobe_toward` of phid (nx, ny, nz) and flux (3, nx, ny, nz) of one light and
     channel on the medium's grid, trilinear on the stencil ``corners``."""
@@ -328,7 +328,7 @@ def diffuse_lobe(phid, flux, corners, d, g, cap):
                        interpolate(flux[2], corners), d[0], d[1], d[2], g, cap)
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def grid_fields(grid, l, c, corners):
     """(phi, phia, phi_dir) of light l in channel c on the medium's grid at the stencil
     ``corners``; phia and phi_dir are not looked up (0) where phi <= 0."""
@@ -359,7 +359,7 @@ def light_channel(grid, spherical, l, c, corners, geometry, d, g, walk, diffuse)
     return val
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def light_in_scattering(lights, grid, spherical, l, corners, x, d, g, walk=True, diffuse=True):
     """Light l's term of L_s / sigma_s at the sample x (RGB): E_l phi_l f_hg(d_l . -d; g A_l),
     split into the lobes of docs/METHOD.md Eq. 23-24 (see :func:`light_channel`; ``walk`` and
@@ -530,7 +530,7 @@ def point_light_room(lights, x, step):
     return int(min(room, 1e9))
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def light_sample(lights, grid, spherical, view, x, d, corners, g, ts):
     """L_s / sigma_s at the sample x (RGB) at distance ts along the camera ray d: with a combined
     source (``view`` = (source, near), source of shape (nx, ny, nz, 3)) its trilinear value plus
@@ -580,7 +580,7 @@ def _log_mean_exp(beta):
     return -beta + math.log(-math.expm1(beta)) - math.log(-beta)
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def edge_single_scattering(medium, lights, grid, x, d, g, sigma_t, jt, ds):
     """What the suns' unscattered light scattered once adds to L_s / sigma_s (RGB) at a sample x
     in the grid's outer half cell (beyond the last voxel centres, where every field is clamped
@@ -668,7 +668,7 @@ def march_segments(L, T, sigma_t, ds, albedo, ls):
     return (L0, L1, L2), (T0, T1, T2)
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense,
     coarse, edge): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
@@ -753,7 +753,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     its samples of the march's L + T_v L_background (docs/METHOD.md Eq. 24). Rows go to
     ``lanes`` (numba.get_num_threads()) lanes round-robin, lane l rows l, l + lanes, ...: rows
     through the medium cost far more than the sky's, and neighbouring rows about the same
-    (kernels/__init__.py, "lanes").
+    (kernels/__init__.py, "Lanes").
 
     medium: density float32 (nx, ny, nz); scale float64 (3,), sigma_t per channel = scale *
         density; albedo, g: float32 grids (1, 1, 1) or density-shaped; albedo_rgb float64 (3,),

@@ -47,7 +47,7 @@ def _local(frame, r, st, ct, sp, cp):
     return x, y, z
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def _one(medium, k, i, j):
     """The rates (kernels.cells.rates) of cell (k, i, j): what a part leaving the domain across
     its face meets. medium: (sigma_t, sigma_s, g, paper)."""
@@ -55,7 +55,7 @@ def _one(medium, k, i, j):
     return cell_rates(sigma_t, sigma_s, g, k, i, j, paper)
 
 
-@nb.njit(**ON_ITS_OWN, nogil=True)
+@nb.njit(**ON_ITS_OWN)
 def _two(medium, k, i, j, k2, i2, j2):
     """The rates of cell (k, i, j) plus those of cell (k2, i2, j2): what a part crossing the
     face between them meets.
