@@ -42,13 +42,18 @@ def test_parallel_sums_are_the_same_with_one_or_two_threads():
     assert KP.total_energy(a) == pytest.approx(float(np.sum(a, dtype=np.float64)), rel=1e-12)
 
 
-def test_a_solve_is_the_same_with_one_or_two_threads():
-    scene = popvol.scene_from_dict({
+def sun_and_sky(sky_lights: int):
+    """A small procedural cloud under a sun and a sky of ``sky_lights`` directions."""
+    return popvol.scene_from_dict({
         "medium": {"type": "procedural", "resolution": 10, "scale": 30.0, "time": 1.0},
         "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": 5.0},
-                   {"type": "sky", "lights": 2}],
+                   {"type": "sky", "lights": sky_lights}],
         "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "width": 32, "height": 18},
         "method": {"resolution": 16}})
+
+
+def test_a_solve_is_the_same_with_one_or_two_threads():
+    scene = sun_and_sky(2)
     one, two = with_threads(1, lambda: popvol.solve(scene)), with_threads(2, lambda: popvol.solve(scene))
     for name in ("phi", "phia", "direct", "phid", "flux"):
         assert np.array_equal(getattr(one, name), getattr(two, name)), name
@@ -60,12 +65,7 @@ def test_domains_solved_side_by_side_are_the_same_as_one_at_a_time(monkeypatch):
     Numba thread of its own Python thread, give the bits of one at a time on two threads."""
     import threading
     import popvol.pipeline as P
-    scene = popvol.scene_from_dict({
-        "medium": {"type": "procedural", "resolution": 10, "scale": 30.0, "time": 1.0},
-        "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": 5.0},
-                   {"type": "sky", "lights": 3}],
-        "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "width": 32, "height": 18},
-        "method": {"resolution": 16}})
+    scene = sun_and_sky(3)
     ran = []
     solve_light = P.solve_light
 
