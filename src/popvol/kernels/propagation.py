@@ -245,6 +245,12 @@ def lanes_of(band_lane):
     return n
 
 
+@nb.njit(cache=True, nogil=True)
+def bands_of(band_lane, lane):
+    """int64: the bands ``band_lane`` deals to ``lane``, in order."""
+    return np.flatnonzero(band_lane == np.int64(lane))
+
+
 @nb.njit(inline="always", cache=True)
 def _add(R, Ra, k, i, j, e, ea):
     R[k, i, j] += e
@@ -338,11 +344,8 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
     number of cells that sent.
     """
     n0, n1, n2 = R.shape
-    for ll in nb.prange(lanes_of(band_lane)):
-        lane = np.int64(ll)     # prange indices are unsigned
-        for b in range(bands.shape[0] - 1):
-            if band_lane[b] != lane:
-                continue
+    for lane in nb.prange(lanes_of(band_lane)):
+        for b in bands_of(band_lane, lane):
             lo = bands[b]
             hi = bands[b + 1]
             # the tallies of the first and second row of a pair; np.int64(0), not a constant 0, which

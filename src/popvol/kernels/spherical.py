@@ -34,7 +34,7 @@ import numpy as np
 from . import ON_ITS_OWN
 from .cells import rates as cell_rates
 from .propagation import (ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED, _add, _hands_over, _wrap,
-                          lanes_of, split, total_energy)
+                          bands_of, lanes_of, split, total_energy)
 from .sampling import trilinear, trilinear_clamped
 
 
@@ -356,11 +356,8 @@ def sweep_spherical_bands(R, Ra, Fr, Ft, Fp, table, moment, full, forward, flip,
     n0, n1, n2 = R.shape
     half = n2 // 2
     one = np.float32(1.0)
-    for ll in nb.prange(lanes_of(band_lane)):
-        lane = np.int64(ll)     # prange indices are unsigned
-        for b in range(bands.shape[0] - 1):
-            if band_lane[b] != lane:
-                continue
+    for lane in nb.prange(lanes_of(band_lane)):
+        for b in bands_of(band_lane, lane):
             lo = bands[b]
             hi = bands[b + 1]
             refl = 0.0
