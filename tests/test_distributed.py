@@ -135,6 +135,8 @@ def test_numba_threads_per_worker(client, scene, tmp_path):
         return numba.config.NUMBA_NUM_THREADS, numba.get_num_threads()
 
     assert set(client.run(probe).values()) == {(want, want)}
+    # the local cluster's workers run without Dask's MALLOC_TRIM_THRESHOLD_ (pd.LOCAL_CONFIG)
+    assert set(client.run(lambda: "MALLOC_TRIM_THRESHOLD_" in os.environ).values()) == {False}
     res = pd.run_on_cluster(client, scene, [0, 1], str(tmp_path / "n_#.exr"),
                             {"warm_start": False}, progress=False)
     assert {r["numba_threads"] for r in res} == {want}
