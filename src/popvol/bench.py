@@ -81,7 +81,10 @@ SCENES = {
     "field_point_256": ("field_point.toml", {"resolution": 256}, {"resolution": 48},
                         "the same at 256 cells"),
 }
-STAGES = ("load", "resample", "propagate", "diffusion", "fields", "render", "total")
+#: per scene row: the solve's stages (summed over its light domains, which overlap where they
+#: are solved side by side, pipeline.side_by_side), then the solve's own wall time, the render's
+#: and the whole frame's
+STAGES = ("load", "resample", "propagate", "diffusion", "fields", "solve", "render", "total")
 
 
 # -- figures ------------------------------------------------------------------------------------
@@ -362,6 +365,7 @@ def bench_scene(load, repeat: int, source: str) -> dict:
             stages["load"].append(t1 - t0)
             for k in ("resample", "propagate", "diffusion", "fields"):
                 stages[k].append(solution.seconds[k])
+            stages["solve"].append(t2 - t1)
             stages["render"].append(t3 - t2)
             stages["total"].append(t3 - t0)
             sent = sum(ds.result.cells_sent for ds in solution.domains)
