@@ -42,12 +42,16 @@ def test_parallel_sums_are_the_same_with_one_or_two_threads():
     assert KP.total_energy(a) == pytest.approx(float(np.sum(a, dtype=np.float64)), rel=1e-12)
 
 
-def sun_and_sky(sky_lights: int):
-    """A small procedural cloud under a sun and a sky of ``sky_lights`` directions."""
+def sun_and_sky(sky_lights: int, point: bool = False):
+    """A small procedural cloud under a sun and a sky of ``sky_lights`` directions (and, with
+    ``point``, a point light inside it: a spherical domain of its own)."""
+    lights = [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": 5.0},
+              {"type": "sky", "lights": sky_lights}]
+    if point:
+        lights.append({"type": "point", "position": [0.0, 0.7, 0.0], "intensity": 2.0})
     return popvol.scene_from_dict({
         "medium": {"type": "procedural", "resolution": 10, "scale": 30.0, "time": 1.0},
-        "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": 5.0},
-                   {"type": "sky", "lights": sky_lights}],
+        "lights": lights,
         "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "width": 32, "height": 18},
         "method": {"resolution": 16}})
 
@@ -60,12 +64,14 @@ def test_a_solve_is_the_same_with_one_or_two_threads():
     assert [d.result.iterations for d in one.domains] == [d.result.iterations for d in two.domains]
 
 
-def test_domains_solved_side_by_side_are_the_same_as_one_at_a_time(monkeypatch):
-    """pipeline.side_by_side: the sun's and the sky's domains solved two at a time, each on one
-    Numba thread of its own Python thread, give the bits of one at a time on two threads."""
+@pytest.mark.parametrize("point", [False, True])
+def test_domains_solved_side_by_side_are_the_same_as_one_at_a_time(monkeypatch, point):
+    """pipeline.side_by_side: the sun's and the sky's domains (and a point light's spherical
+    one) solved two at a time, each on one Numba thread of its own Python thread, give the bits
+    of one at a time on two threads."""
     import threading
     import popvol.pipeline as P
-    scene = sun_and_sky(3)
+    scene = sun_and_sky(3, point)
     ran = []
     solve_light = P.solve_light
 
@@ -79,11 +85,13 @@ def test_domains_solved_side_by_side_are_the_same_as_one_at_a_time(monkeypatch):
         ran.clear()
         solutions[workers] = with_threads(2, lambda: popvol.solve(scene))
         threads = {t for t, _ in ran}
-        assert len(ran) == 4 and len(threads) == workers
+        assert len(ran) == len(scene.lights) and len(threads) == workers
         assert {n for _, n in ran} == {2 // workers}
     one, two = solutions[1], solutions[2]
     for name in ("phi", "phia", "direct", "phid", "flux"):
         assert np.array_equal(getattr(one, name), getattr(two, name)), name
+    assert np.array_equal(one.points.fields, two.points.fields)
+    assert np.array_equal(popvol.render(scene, one), popvol.render(scene, two))
     assert [(d.light_index, d.result.iterations) for d in one.domains] == \
         [(d.light_index, d.result.iterations) for d in two.domains]
 
