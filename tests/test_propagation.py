@@ -264,10 +264,11 @@ def test_band_lanes_deal_the_work_longest_first():
     assert set(K.band_lanes(sent, np.zeros(6), 1)) == {0}
 
 
-@pytest.mark.parametrize("dealing", ["one lane", "in turn", "reversed", "three lanes"])
+@pytest.mark.parametrize("dealing", ["in turn", "reversed", "three lanes"])
 def test_sweep_is_the_same_for_any_dealing_of_bands_to_lanes(dealing, rng):
     """Bands are independent within a sweep (side parts crossing a band edge are parked), so
-    which lane sweeps which band changes nothing: bitwise the same fields and tallies."""
+    which lane sweeps which band changes nothing: bitwise the same fields and tallies as every
+    band in one lane."""
     shape = (9, 50, 11)                                     # 4 bands: 16, 16, 16 and 2 rows
     W, Wa, Th, Dh = random_state(rng, shape)
     diffusive = hand_over_factors(rng, shape)
