@@ -14,8 +14,10 @@ import twins as ref
 from popvol.lights import DirectionalLight, PointLight
 from popvol.medium import Medium
 from popvol.pipeline import solve
-from popvol.kernels.render import MAX_SEGMENT_DEPTH
-from popvol.renderer import BLOCK, densest_in_blocks, render, render_inputs, skip_blocks
+from popvol.kernels.render import MAX_SEGMENT_DEPTH, block_at, dense_blocks_box
+from popvol.kernels.source import in_scattering_source
+from popvol.renderer import (BLOCK, densest_in_blocks, field_bundles, occupied_cells, render, render_inputs,
+                             skip_blocks)
 from popvol.scene import Method, Scene, apply_overrides
 
 
@@ -396,6 +398,92 @@ def test_skipping_many_empty_blocks_at_once_changes_no_pixel(peak_tau):
         skipped = render(scene, sol, jitter=True, combined=combined)
         np.testing.assert_array_equal(skipped, render(scene, sol, jitter=True, combined=combined, skip=False))
         assert skipped.max() > 0
+
+
+def small_cloud_in_a_large_grid(n=64):
+    """A blob of radius about 0.1 at (0.55, 0.45, 0.5) in the unit cube's 64^3 grid, 0 elsewhere:
+    most blocks are empty, and the box of the non-empty ones is well inside the grid."""
+    x = (np.arange(n) + 0.5) / n
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    rho = np.exp(-((X - 0.55) ** 2 + (Y - 0.45) ** 2 + (Z - 0.5) ** 2) / (2 * 0.05**2))
+    rho = np.where(rho > 0.1, rho, 0.0).astype(np.float32)
+    return Medium(rho, 1.0 / n, np.full(3, 0.5 / n), scale=60.0, albedo=0.9, g=0.5, source="small cloud")
+
+
+def test_marching_only_the_box_of_non_empty_blocks_changes_no_pixel():
+    """A small cloud in a large grid, seen whole, with the image's corners beside it: the march
+    starts and stops at the box of the non-empty blocks (kernels.render.dense_blocks_box) and
+    skips the cells of empty voxels (renderer.occupied_cells); the image is bitwise that of
+    marching every sample, with and without jitter, light by light and with the combined
+    source."""
+    scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=40, h=24))
+    scene.camera = Camera([0.5, 0.6, 1.6], [0.5, 0.5, 0.5], [0, 1, 0], 50.0, 40, 24)
+    scene.medium = small_cloud_in_a_large_grid()
+    sol = solve(scene)
+    medium = render_inputs(scene, sol)[0]
+    lo, hi = dense_blocks_box(medium)
+    assert np.all(np.array(lo) > 0.1) and np.all(np.array(hi) < 0.9)      # well inside the unit cube
+    for jitter in (True, False):
+        for combined in (True, False):
+            skipped = render(scene, sol, jitter=jitter, combined=combined)
+            np.testing.assert_array_equal(skipped, render(scene, sol, jitter=jitter, combined=combined, skip=False))
+            assert skipped.max() > 0
+            # a corner's ray crosses the grid but misses the box: nothing but the background
+            np.testing.assert_array_equal(skipped[0, 0], np.float32(scene.background))
+
+
+def test_points_outside_the_box_of_non_empty_blocks_lie_in_empty_blocks(rng):
+    """kernels.render.dense_blocks_box against the coarse grid itself: 20,000 random points of the
+    medium's box outside it are each in a block that block_at calls empty, and every
+    non-empty block's centre is inside it; a grid without density gives an empty box."""
+    scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=8, h=6))
+    scene.medium = small_cloud_in_a_large_grid()
+    medium = render_inputs(scene, solve(scene))[0]
+    lo, hi = (np.array(b) for b in dense_blocks_box(medium))
+    blocks, size = medium[9], BLOCK * scene.medium.voxel_size
+    outside = 0
+    for x in rng.uniform(0.0, 1.0, (20000, 3)):
+        if np.any(x < lo) or np.any(x > hi):
+            outside += 1
+            assert block_at(medium, x, np.array([1.0, 0.0, 0.0]))[0] < 0.0
+    assert outside > 15000
+    for b in np.argwhere(blocks > 0):
+        centre = scene.medium.origin - 0.5 * scene.medium.voxel_size + (b + 0.5) * size
+        assert np.all(centre > lo) and np.all(centre < hi)
+    empty = (np.zeros_like(medium[0]),) + medium[1:9] + (skip_blocks(densest_in_blocks(np.zeros_like(medium[0]), BLOCK)),) + medium[10:]
+    lo, hi = dense_blocks_box(empty)
+    assert np.all(np.array(lo) > np.array(hi))
+
+
+def test_occupied_cells_hold_the_cells_with_a_non_empty_voxel(rng):
+    """renderer.occupied_cells against the definition, cell by cell: (i, j, k) is occupied where
+    one of the voxels [i, i + 1] x [j, j + 1] x [k, k + 1] within the grid has density > 0."""
+    density = np.where(rng.random((9, 7, 5)) < 0.08, rng.random((9, 7, 5)), 0.0).astype(np.float32)
+    cells = occupied_cells(density)
+    assert cells.dtype == np.uint8 and cells.shape == density.shape and 0 < cells.sum() < cells.size
+    for i, j, k in np.ndindex(density.shape):
+        assert cells[i, j, k] == (density[i:i + 2, j:j + 2, k:k + 2] > 0).any()
+
+
+def test_combined_source_is_the_same_in_any_number_of_lanes():
+    """kernels.source.in_scattering_source deals the slices of the grid to lanes: 1, 2 and 5
+    lanes give the same bits (kernels/__init__.py, "Lanes")."""
+    scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=8, h=6, n=16, peak_tau=3.0))
+    scene.method.isotropic = "diffusion"
+    scene.method.gather = 0
+    sol = solve(scene)
+    medium, lights = render_inputs(scene, sol)[:2]
+    grid, spherical = field_bundles(sol)
+    seen = scene.medium.density > 0
+    sources = []
+    for lanes in (1, 2, 5):
+        out = np.zeros(scene.medium.shape + (3,), np.float32)
+        in_scattering_source(medium, lights, grid, spherical, np.asarray(scene.camera.origin, np.float64), seen,
+                             out, lanes)
+        sources.append(out)
+    assert sources[0].max() > 0
+    for other in sources[1:]:
+        np.testing.assert_array_equal(sources[0], other)
 
 
 def test_values_of_the_density_are_made_once_per_density_array():

@@ -38,6 +38,10 @@ GATHER_LANES = 4
 GATHER_BLOCK_MFP = 0.5
 #: the cap of denser gather directions reaches this far (radians) beyond the view's half-diagonal
 GATHER_CAP_MARGIN = np.radians(15.0)
+#: the medium bundle's occupied cells left out (occupied_cells): the march interpolates the
+#: density everywhere (render_inputs with skip=False; the gather's cropped and coarse grids,
+#: which it does not march)
+NO_CELLS = np.zeros((0, 0, 0), np.uint8)
 #: voxels to spare around the box the gather transports light in
 GATHER_MARGIN = 2
 
@@ -52,7 +56,9 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool | None =
     midpoints (None: jitter when ``method.spp`` > 1; docs/METHOD.md, Eq. 25). ``combined``:
     light the samples from one in-scattering source built for this view (kernels/source.py), else light by light
     (None: whichever costs less, by COMBINED_VOXELS_PER_SAMPLE; the images differ by relMSE
-    <= 1e-4, docs/METHOD.md); ``skip``: jump over empty blocks of the medium (the image is bitwise the same).
+    <= 1e-4, docs/METHOD.md); ``skip``: march only within the box of the medium's non-empty
+    blocks, jump over empty blocks and do not interpolate the density in cells whose eight
+    voxels are empty (the image is bitwise the same).
     With ``method.gather`` > 0 the combined source is always used (it holds the gathered light),
     except for a solution of the unscattered light alone (``Solution.single_scattering()``),
     which is rendered as it is, and where no light has an unscattered part (an environment
@@ -76,7 +82,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     (medium, lights, grid, spherical, view, camera, march, background). The one place that
     packs the scene and the solution's fields for the kernel; with ``combined`` it builds the
     view's combined in-scattering source (so its cost is part of rendering); ``skip``: the march
-    jumps over the coarse grid's empty blocks."""
+    skips what is empty (:func:`render`), else it takes every sample (the medium's occupied
+    cells are then left out: NO_CELLS)."""
     med = scene.medium
     cam = scene.camera
     m = scene.method
@@ -87,7 +94,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     seen = seen_voxels(med)
     blocks = med.derived("skip_blocks", lambda density: skip_blocks(densest_in_blocks(density, BLOCK)))
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
-              med.origin, med.voxel_size, lo, hi, blocks, BLOCK_BITS)
+              med.origin, med.voxel_size, lo, hi, blocks, BLOCK_BITS,
+              med.derived("occupied_cells", occupied_cells) if skip else NO_CELLS)
     lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
               np.ascontiguousarray(solution.irradiance, np.float64),
               np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_))
@@ -118,7 +126,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
         gathered = gather(*args[:3], eye, seen, m.gather, factor, gather_cap(cam), state=kept[2])
         if not own.all():                 # the others' light, all of it, from their lobes
             others, (others_grid, others_spherical) = only_lights(~own, lights, grid, spherical)
-            in_scattering_source(medium, others, others_grid, others_spherical, eye, seen, gathered)
+            in_scattering_source(medium, others, others_grid, others_spherical, eye, seen, gathered,
+                                 numba.get_num_threads())
         solution = solution.single_scattering()
         combined = True
     grid, spherical = field_bundles(solution)
@@ -133,7 +142,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
         source = np.zeros(med.density.shape + (3,), np.float32)
     if combined and grid_lit > 0:         # the single scattering (gathering), or all of it
         in_scattering_source(medium, lights, grid, spherical, np.asarray(cam.origin, np.float64),
-                             seen, source)
+                             seen, source, numba.get_num_threads())
     near = 0.0 if gathering else float(NEAR_VOXELS * med.voxel_size.min())
     view = (source, near)
     step = float(m.step * med.voxel_size.min())
@@ -318,13 +327,13 @@ def occupied_box(mask: np.ndarray, margin: int) -> tuple[slice, slice, slice]:
 def crop_bundles(medium, grid, box) -> tuple[tuple, tuple]:
     """The render kernel's medium and grid bundles cut to the index ``box`` (constants stay
     constants; the origin moves to the box's first voxel)."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     phi, phia, direct, phid, flux, lobe_cap = grid
     whole = all(b.stop - b.start == n for b, n in zip(box, density.shape))
     cut = (lambda a: a if a.size <= 1 or whole else np.ascontiguousarray(a[(Ellipsis,) + box]))
     start = np.array([b.start for b in box], np.float64)
     return ((cut(density), scale, cut(albedo), albedo_rgb, cut(g_grid), origin + start * voxel, voxel, lo, hi,
-             blocks, block_bits), tuple(cut(f) for f in (phi, phia, direct, phid, flux)) + (lobe_cap,))
+             blocks, block_bits, NO_CELLS), tuple(cut(f) for f in (phi, phia, direct, phid, flux)) + (lobe_cap,))
 
 
 def gather_factor(medium, resolution: int) -> int:
@@ -356,11 +365,11 @@ def coarse_bundles(medium, grid, seen, factor: int) -> tuple[tuple, tuple, np.nd
     """The render kernel's medium and grid bundles on blocks of factor^3 voxels (block means;
     constants stay constants; the origin is the first block's centre), and the blocks the
     upsampling reads: those holding a seen voxel and their neighbours."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     phi, phia, direct, phid, flux, lobe_cap = grid
     const = (lambda a: a if a.size == 1 else block_mean(a, factor))
     coarse_medium = (block_mean(density, factor), scale, const(albedo), albedo_rgb, const(g_grid),
-                     origin + 0.5 * (factor - 1) * voxel, voxel * factor, lo, hi, blocks, block_bits)
+                     origin + 0.5 * (factor - 1) * voxel, voxel * factor, lo, hi, blocks, block_bits, NO_CELLS)
     coarse_grid = tuple(block_mean(f, factor) if f.size > 1 else f for f in (phi, phia, direct, phid, flux)) + (lobe_cap,)
     # the blocks holding a seen voxel and their 26 neighbours (the trilinear stencil): the same
     # one-block dilation voxels_seen makes of a density
@@ -387,6 +396,20 @@ def densest_in_blocks(density: np.ndarray, block: int) -> np.ndarray:
     out = np.zeros(tuple(-(-n // block) for n in density.shape), np.float32)
     densest_near_blocks(np.ascontiguousarray(density, np.float32), block, out)
     return out
+
+
+def occupied_cells(density: np.ndarray) -> np.ndarray:
+    """uint8 (nx, ny, nz): 1 where the cell between the voxel centres (i, j, k) and (i + 1, j +
+    1, k + 1) has a voxel of density > 0 among its eight corners (within the grid), else 0. A
+    trilinear stencil whose lower corner is (i, j, k) reads only those voxels (its upper index
+    is clamped to the grid), so where this is 0 the density there is 0 and the march does not
+    interpolate it (kernels/render.py, medium_at)."""
+    cell = density > 0
+    for axis in range(3):             # each voxel or its upper neighbour along the axis
+        upper = np.zeros_like(cell)
+        upper[(slice(None),) * axis + (slice(0, -1),)] = cell[(slice(None),) * axis + (slice(1, None),)]
+        cell = cell | upper
+    return cell.astype(np.uint8)
 
 
 def skip_blocks(densest: np.ndarray, reach: int = SKIP_REACH) -> np.ndarray:

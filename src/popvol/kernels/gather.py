@@ -109,7 +109,7 @@ def mean_inverse_square(r, R):
 @nb.njit(**ON_ITS_OWN)
 def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffuse, cell_radius):
     """Row m of ``lobes`` (:func:`emission_lobes`)."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     is_point = lights[0]
     power = lights[POWER]
     ix, iy, iz = cells[m, 0], cells[m, 1], cells[m, 2]
@@ -165,7 +165,7 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     :func:`mean_inverse_square`, since the lobe stands for the whole cell) and the diffusion stage's light about
     its flux (diffuse_lobe_axis); a grey field's lobe carries the light's RGB power, channel c's
     only colour c. Evaluated once per cell, they serve every direction of the gather."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     n_ch = grid[PHI].shape[1]
     has_diffuse = grid[PHID].shape[0] > 0
     cell_radius = (3.0 * voxel[0] * voxel[1] * voxel[2] / (4.0 * math.pi)) ** (1.0 / 3.0)
@@ -202,7 +202,7 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
 def eye_directions(medium, eye, needed):
     """float64 (nx, ny, nz, 3): the unit vector from each voxel centre toward ``eye`` where
     ``needed`` (0 elsewhere), made once for all the directions of a gather."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     nx, ny, nz = needed.shape
     out = np.zeros((nx, ny, nz, 3))
     for ix in range(nx):

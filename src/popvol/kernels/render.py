@@ -35,7 +35,10 @@ Two shortcuts, neither changing which samples are taken:
   it, and at an empty block how far the empty blocks around it reach (renderer.skip_blocks);
   a sample in an empty block jumps to the first sample past them. Samples sit at
   t0 + (i + jt) step, not at an accumulated t, so the jump leaves every other sample where it
-  was: the image is bitwise the same without skipping.
+  was: the image is bitwise the same without skipping. For the same reason a ray is marched
+  only across the box of the non-empty blocks (:func:`dense_blocks_box`), and a sample whose
+  trilinear stencil reads only empty voxels (one byte per cell, renderer.occupied_cells) does
+  not interpolate the density.
 
 Two refinements change the samples, by the optical depth of each block: a segment in a block
 whose densest voxel would make it thicker than MAX_SEGMENT_DEPTH mean free paths is split into
@@ -47,7 +50,7 @@ to the outermost voxels' values, takes the suns' unscattered light there by Beer
 the face, averaged over its segment in closed form (:func:`edge_single_scattering`).
 
 The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` builds them):
-  medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block_bits)
+  medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block_bits, occupied)
   lights     (is_point, direction, power, position, unscattered)
   grid       (phi, phia, direct, phid, flux, lobe_cap)      the fields on the medium's grid
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
@@ -420,9 +423,11 @@ def medium_at(medium, x):
     """The medium at the world point x: (corners, rho, g, sigma_t, albedo) with ``corners`` the
     trilinear stencil of x on the medium's grid, rho the density, g the phase's anisotropy, and
     sigma_t = scale rho and the albedo per RGB channel (3-tuples); all 0 where rho <= 0."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     corners = cell_corners((x[0] - origin[0]) / voxel[0], (x[1] - origin[1]) / voxel[1],
                            (x[2] - origin[2]) / voxel[2], density.shape)
+    if occupied.shape[0] > 0 and not occupied[corners[0], corners[2], corners[4]]:
+        return corners, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)     # the stencil's voxels are empty
     rho = interpolate(density, corners)
     if rho <= 0.0:
         return corners, 0.0, 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
@@ -461,7 +466,7 @@ def block_at(medium, x, d):
     -n < 0 says the block is empty and so is every block within n - 1 of it (Chebyshev
     distance, in blocks), and those are that cube of blocks. (0, 1e300) without the grid (shape
     (0, 0, 0)): no block is empty or dense."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, bits, occupied = medium
     if blocks.shape[0] == 0:
         return 0.0, 1e300
     s = density.shape
@@ -475,6 +480,45 @@ def block_at(medium, x, d):
     ey = _block_exit(x[1], origin[1], voxel[1], block, blocks.shape[1], by, r, d[1])
     ez = _block_exit(x[2], origin[2], voxel[2], block, blocks.shape[2], bz, r, d[2])
     return value, max(min(ex, ey, ez), 0.0)
+
+
+@nb.njit(**ON_ITS_OWN)
+def dense_blocks_box(medium):
+    """The world box (lo, hi: 3-tuples) of the coarse grid's non-empty blocks (block_at's value
+    >= 0), grown by a thousandth of a voxel so that a point outside it is outside by more than
+    rounding: every point of the medium's box outside it lies in an empty block, where the
+    density is 0. Where a block on the grid's edge is non-empty the box reaches the medium's
+    box there, as the blocks' clamped index does. The medium's box without the grid (shape (0,
+    0, 0)); an empty box (lo > hi) where every block is empty."""
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, bits, occupied = medium
+    if blocks.shape[0] == 0:
+        return (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])
+    n0, n1, n2 = blocks.shape
+    f0, f1, f2, l0, l1, l2 = n0, n1, n2, -1, -1, -1     # the first and last non-empty block along each axis
+    for bx in range(n0):
+        for by in range(n1):
+            for bz in range(n2):
+                if blocks[bx, by, bz] >= 0.0:
+                    f0, f1, f2 = min(f0, bx), min(f1, by), min(f2, bz)
+                    l0, l1, l2 = max(l0, bx), max(l1, by), max(l2, bz)
+    if l0 < 0:
+        return (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)
+    size = 1 << bits
+    # block b holds the clamped voxel index u = (x - origin) / voxel in [b size, (b + 1) size)
+    return ((_box_face(lo[0], origin[0], voxel[0], f0 * size, f0 == 0, -1.0),
+             _box_face(lo[1], origin[1], voxel[1], f1 * size, f1 == 0, -1.0),
+             _box_face(lo[2], origin[2], voxel[2], f2 * size, f2 == 0, -1.0)),
+            (_box_face(hi[0], origin[0], voxel[0], (l0 + 1) * size, l0 == n0 - 1, 1.0),
+             _box_face(hi[1], origin[1], voxel[1], (l1 + 1) * size, l1 == n1 - 1, 1.0),
+             _box_face(hi[2], origin[2], voxel[2], (l2 + 1) * size, l2 == n2 - 1, 1.0)))
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _box_face(edge, o, h, u, at_edge, side):
+    """Along one axis, a face of :func:`dense_blocks_box`: the medium box's ``edge`` where the
+    blocks reach the grid's edge (``at_edge``), else the world coordinate of voxel index u
+    (origin o, voxel h) moved outward (``side`` -1 below, +1 above) by a thousandth of a voxel."""
+    return edge if at_edge else o + u * h + side * 1e-3 * h
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -671,7 +715,7 @@ def march_segments(L, T, sigma_t, ds, albedo, ls):
 @nb.njit(**ON_ITS_OWN)
 def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     """The ray o + t d through the medium in ``segments`` = (t0, t1, step, jt, skip, dense,
-    coarse, edge): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
+    coarse, edge, t_in, t_out): from t0 to t1 (its span in the medium's box) in segments [t0 + i step, t0 + (i + 1)
     step] (the last one cut at t1), the optics and fields taken at offset jt within each.
     Returns (L0, L1, L2, T0, T1, T2): the radiance scattered toward o, int T_v sigma_s L_s dt
     (docs/METHOD.md Eq. 24), and the view transmittance T_v at the exit, 0 once it fell below
@@ -686,21 +730,27 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     :func:`coarse_factor`, :func:`point_light_room`; decided at the segment's start, which must
     lie in that block), sampled at offset jt within it. With ``skip``, a sample in an empty
     block jumps to the first sample past the empty blocks around it that the grid vouches for:
-    their density is 0, so they add nothing, and the samples taken are the same. With ``edge``
+    their density is 0, so they add nothing, and the samples taken are the same; for the same
+    reason the march starts at the last sample a step or more before t_in and stops at t_out
+    (the ray's span in :func:`dense_blocks_box`, outside which every block is empty). With ``edge``
     (some voxel on the grid's faces is at least EDGE_DEPTH thick), a sample in the grid's outer
     half cell adds what the clamped fields miss of the suns' single scattering there
     (:func:`edge_single_scattering`)."""
-    t0, t1, step, jt, skip, dense, coarse, edge = segments
+    t0, t1, step, jt, skip, dense, coarse, edge, t_in, t_out = segments
     scale = medium[1]
     sigma_max = max(scale[0], scale[1], scale[2])
     L = (0.0, 0.0, 0.0)
     T = (1.0, 1.0, 1.0)
     i = 0
+    if skip:                        # the samples before t_in and from t_out on lie in empty blocks
+        if t_in >= t_out:
+            return 0.0, 0.0, 0.0, 1.0, 1.0, 1.0
+        i = max(int((t_in - t0) / step) - 1, 0)
     rho_max = 0.0                   # the densest voxel near the block of the last lookup
     t_leave = -1.0                  # where the ray leaves that block, if it holds density
     while True:
         t = t0 + i * step           # not accumulated: skipping samples leaves the others as they are
-        if t >= t1:
+        if t >= t1 or (skip and t >= t_out):
             break
         ds = min(step, t1 - t)
         ts = t + jt * ds
@@ -762,7 +812,9 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         blocks float32 (ceil(nx / 2^block_bits), ...): the largest density within one voxel of
         each block of (2^block_bits)^3 voxels, or at an empty block -n, n its Chebyshev distance
         in blocks to the nearest non-empty one (renderer.skip_blocks; shape (0, 0, 0): no
-        grid); block_bits int (renderer.BLOCK_BITS).
+        grid); block_bits int (renderer.BLOCK_BITS); occupied uint8 (nx, ny, nz): whether the
+        cell from voxel (i, j, k) to (i + 1, j + 1, k + 1) has a voxel of density > 0
+        (renderer.occupied_cells; shape (0, 0, 0): not known, the density is interpolated).
     lights: is_point bool (n_lights,); direction float64 (n_lights, 3), the direction a sun's
         light travels; power float64 (n_lights, 3), RGB irradiance or intensity; position
         float64 (n_lights, 3), a point light's; unscattered bool (n_lights,), whether the
@@ -792,18 +844,20 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     background: float32 (1, 1, 3) (a constant) or (H, 2H, 3) (a lat-long environment map, see
         background_radiance).
     """
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits = medium
+    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     is_point, direction, power, position, unscattered = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
     source, near = view
     o, basis, tan_half, width, height = camera
     step, spp, seed, jitter, skip, dense, coarse, edge = march
+    box_lo, box_hi = dense_blocks_box(medium)
     for lane in nb.prange(lanes):
         # The bundles are rebuilt here from their arrays, so that the helpers read the arrays
         # themselves: with the bundles as passed in, the march took and dropped references to
         # their arrays (atomic counts) at every sample, about 1.2x slower.
-        medium_ = (density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits)
+        medium_ = (density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits,
+                   occupied)
         lights_ = (is_point, direction, power, position, unscattered)
         grid_ = (phi, phia, direct, phid, flux, lobe_cap)
         spherical_ = (fields, offset, shape, params, frame, full)
@@ -817,8 +871,9 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
                     jx, jy, jt = pixel_sample(march_, px, py, s)
                     d = camera_ray(camera_, px + jx, py + jy)
                     t0, t1 = ray_box(o, d, lo, hi)
+                    t_in, t_out = ray_box(o, d, box_lo, box_hi) if skip else (t0, t1)
                     L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
-                                                       (t0, t1, step, jt, skip, dense, coarse, edge))
+                                                       (t0, t1, step, jt, skip, dense, coarse, edge, t_in, t_out))
                     b0, b1, b2 = background_radiance(background, d)
                     acc0 += L0 + T0 * b0
                     acc1 += L1 + T1 * b1
