@@ -344,9 +344,11 @@ def gather_factor(medium, resolution: int) -> int:
     if not resolution:
         return 1
     factor = -(-max(medium.shape) // resolution)
-    rho = medium.density[medium.density > 0]
-    if rho.size:
-        mfp_per_voxel = float(np.percentile(rho, 90)) * float(np.max(medium.scale)) * float(medium.voxel_size.max())
+    # made once per density array (Medium.derived): every frame of a still medium asks again
+    rho_90 = medium.derived("90th percentile of the non-empty density", lambda density: (
+        float(np.percentile(density[density > 0], 90)) if (density > 0).any() else None))
+    if rho_90 is not None:
+        mfp_per_voxel = rho_90 * float(np.max(medium.scale)) * float(medium.voxel_size.max())
         factor = min(factor, int(GATHER_BLOCK_MFP / max(mfp_per_voxel, 1e-30)))
     return max(1, factor)
 
