@@ -144,7 +144,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
         in_scattering_source(medium, lights, grid, spherical, np.asarray(cam.origin, np.float64),
                              seen, source, numba.get_num_threads())
     near = 0.0 if gathering else float(NEAR_VOXELS * med.voxel_size.min())
-    view = (source, near)
+    view = (source, near, np.flatnonzero(solution.is_point).astype(np.int64))
     step = float(m.step * med.voxel_size.min())
     # whether any block is dense enough that the march splits its segments (the kernel's own rule)
     dense = bool(blocks.size) and substeps(medium, float(blocks.max()), step) > 1

@@ -54,7 +54,7 @@ The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` b
   lights     (is_point, direction, power, position, unscattered)
   grid       (phi, phia, direct, phid, flux, lobe_cap)      the fields on the medium's grid
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
-  view       (source, near)                                 the combined source, if any
+  view       (source, near, points)                         the combined source, if any
   camera     (origin, basis, tan_half, width, height)
   march      (step, spp, seed, jitter, skip, dense, coarse, edge)
 (types in :func:`render_kernel`). NumPy twin: tests/twins.py (render_pixel).
@@ -577,20 +577,20 @@ def point_light_room(lights, x, step):
 @nb.njit(**ON_ITS_OWN)
 def light_sample(lights, grid, spherical, view, x, d, corners, g, ts):
     """L_s / sigma_s at the sample x (RGB) at distance ts along the camera ray d: with a combined
-    source (``view`` = (source, near), source of shape (nx, ny, nz, 3)) its trilinear value plus
-    the point lights' walk lobes where ts >= near; otherwise (or without one: shape (0, 0, 0,
-    3)) light by light (:func:`light_in_scattering`)."""
-    source, near = view
+    source (``view`` = (source, near, points), source of shape (nx, ny, nz, 3)) its trilinear
+    value plus the walk lobes of the point lights (their indices ``points``, in order) where
+    ts >= near; otherwise (or without one: shape (0, 0, 0, 3)) light by light
+    (:func:`light_in_scattering`)."""
+    source, near, points = view
     is_point = lights[IS_POINT]
     ls0 = ls1 = ls2 = 0.0
     if source.shape[0] > 0 and ts >= near:
         ls0, ls1, ls2 = interpolate_rgb(source, corners)
-        for l in range(is_point.shape[0]):
-            if is_point[l]:
-                e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, False)
-                ls0 += e0
-                ls1 += e1
-                ls2 += e2
+        for p in range(points.shape[0]):
+            e0, e1, e2 = light_in_scattering(lights, grid, spherical, points[p], corners, x, d, g, True, False)
+            ls0 += e0
+            ls1 += e1
+            ls2 += e2
     else:
         for l in range(is_point.shape[0]):
             e0, e1, e2 = light_in_scattering(lights, grid, spherical, l, corners, x, d, g, True, True)
@@ -830,7 +830,9 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         (n_lights,) (the renderer's PointFields).
     view: source float32 (nx, ny, nz, 3), every term of L_s / sigma_s on the medium's grid
         toward this camera (kernels/source.py), or (0, 0, 0, 3) to light sample by sample;
-        near float, the distance from the camera within which samples are lit light by light.
+        near float, the distance from the camera within which samples are lit light by light;
+        points int64 (n_point_lights,), the point lights' indices in order (their walk lobes
+        are lit per sample also with the combined source).
     camera: origin float64 (3,); basis float64 (3, 3), rows forward, right, up; tan_half, the
         tangent of half the vertical field of view; width, height in pixels.
     march: step in world units; spp samples per pixel; seed; jitter: hashed sub-pixel and
@@ -848,7 +850,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     is_point, direction, power, position, unscattered = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
-    source, near = view
+    source, near, points = view
     o, basis, tan_half, width, height = camera
     step, spp, seed, jitter, skip, dense, coarse, edge = march
     box_lo, box_hi = dense_blocks_box(medium)
@@ -861,7 +863,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         lights_ = (is_point, direction, power, position, unscattered)
         grid_ = (phi, phia, direct, phid, flux, lobe_cap)
         spherical_ = (fields, offset, shape, params, frame, full)
-        view_ = (source, near)
+        view_ = (source, near, points)
         camera_ = (o, basis, tan_half, width, height)
         march_ = (step, spp, seed, jitter, skip, dense, coarse, edge)
         for py in range(lane, height, lanes):
