@@ -53,11 +53,14 @@ def test_operator_and_solver_match_a_sparse_direct_solve(rng):
     A, cells = assemble(D, sah3, mask, h, bw)
     assert abs(A - A.T).max() < 1e-12                     # symmetric
     x = rng.random(shape) * mask
-    out = np.empty(shape)
-    K.apply(x, D, sah3, mask, h, out, bw)
+    space = diffusion.RowSpace(D, sah3, mask, h, bw)       # A on the region's cells alone
+    out = space.vector(np.float64, padding=7.0)
+    space.apply(space.pack(x, np.float64), out)
     xv = np.array([x[c] for c in cells])
-    np.testing.assert_allclose([out[c] for c in cells], A @ xv, rtol=1e-6, atol=1e-9)
-    assert np.all(out[~mask] == 0)
+    np.testing.assert_allclose([space.unpack(out)[c] for c in cells], A @ xv, rtol=1e-6, atol=1e-9)
+    assert np.all(space.unpack(out)[~mask] == 0)
+    assert np.all(out.reshape(-1)[len(cells):] == 7.0)      # the padding is left as it was
+    np.testing.assert_array_equal(space.unpack(space.pack(x, np.float64)), x)
     b = rng.random(shape) * mask
     phi, it, res = diffusion.pcg(D, sah3, mask, h, b, 1e-10, 10_000, bw)
     direct = spla.spsolve(A.tocsc(), np.array([b[c] for c in cells]))

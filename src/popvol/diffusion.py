@@ -146,10 +146,58 @@ def boundary_weight(mask) -> np.ndarray:
     return out
 
 
+#: the conjugate gradients' vectors are (rows, 1, ROW_LENGTH) arrays over the region's cells
+#: (RowSpace), so that the kernels' fixed-order sums run over rows in parallel
+ROW_LENGTH = 256
+
+
+class RowSpace:
+    """The region's cells as the conjugate gradients' unknowns: ``cells`` int64 (n,), their flat
+    C-order indices in the grid, and A's rows there (kernels/diffusion.py, region_rows: ``nbr``,
+    ``G``, ``diag``). A vector is an array (rows, 1, ROW_LENGTH) whose first n entries in C order
+    are the cells' values and the rest padding kept at 0 (the sums and products of the CG
+    kernels then run as on a grid)."""
+
+    def __init__(self, D, sah3, mask, h, bw):
+        self.shape = mask.shape
+        self.cells = np.flatnonzero(mask)
+        n = len(self.cells)
+        index = np.full(mask.shape, -1, np.int64)
+        index.reshape(-1)[self.cells] = np.arange(n)
+        self.nbr = np.empty((n, 6), np.int64)
+        self.G = np.empty((n, 6))
+        self.diag = np.empty(n)
+        K.region_rows(D, sah3, mask, h, bw, self.cells, index, self.nbr, self.G, self.diag)
+        self.rows = max(1, -(-n // ROW_LENGTH))
+
+    def vector(self, dtype, padding: float = 0.0) -> np.ndarray:
+        """A vector of zeros, its padding set to ``padding``."""
+        return np.full((self.rows, 1, ROW_LENGTH), padding, dtype) if padding else \
+            np.zeros((self.rows, 1, ROW_LENGTH), dtype)
+
+    def pack(self, grid, dtype) -> np.ndarray:
+        """The vector of ``grid``'s values at the region's cells."""
+        v = self.vector(dtype)
+        v.reshape(-1)[:len(self.cells)] = grid.reshape(-1)[self.cells]
+        return v
+
+    def unpack(self, v) -> np.ndarray:
+        """The grid (the mask's shape, v's dtype) of the vector v: 0 outside the region."""
+        grid = np.zeros(self.shape, v.dtype)
+        grid.reshape(-1)[self.cells] = v.reshape(-1)[:len(self.cells)]
+        return grid
+
+    def apply(self, x, out) -> None:
+        """out = A x (vectors)."""
+        K.apply_rows(x, self.nbr, self.G, self.diag, out)
+
+
 def pcg(D, sah3, mask, h, b, rtol, max_iterations, bw=None, x0=None):
     """Jacobi-preconditioned conjugate gradients for A x = b. Returns (x, iterations, ||r||/||b||).
     Vectors are float32 when rtol >= 1e-6 (half the memory traffic; sums stay float64), float64
-    for tighter tolerances. ``bw``: the boundary weights (None: 1, the staircase's own area).
+    for tighter tolerances, and hold the region's cells alone (:class:`RowSpace`); x is returned
+    on the grid, 0 outside the region (b must be 0 there). ``bw``: the boundary weights (None: 1,
+    the staircase's own area).
 
     ``x0``: an initial guess (warm start; None: x = 0). Its zeros in the region are filled from
     their neighbours (:func:`fill_gaps`), then it is scaled by the Galerkin factor
@@ -164,23 +212,25 @@ def pcg(D, sah3, mask, h, b, rtol, max_iterations, bw=None, x0=None):
     if bw is None:
         bw = np.ones(b.shape, np.float32)
     dtype = np.float32 if rtol >= 1e-6 else np.float64
-    x = np.zeros(b.shape, dtype)
-    bn = math.sqrt(K.dot(b, b))
+    space = RowSpace(D, sah3, mask, h, bw)
+    bv = space.pack(b, b.dtype)
+    x = space.vector(dtype)
+    bn = math.sqrt(K.dot(bv, bv))
     if bn == 0.0:
-        return x, 0, 0.0
-    M = np.empty(b.shape, dtype)
-    K.diagonal(D, sah3, mask, h, M, bw)
-    Ap = np.empty(b.shape, dtype)
+        return space.unpack(x), 0, 0.0
+    M = space.vector(dtype, padding=1.0)          # the diagonal; 1 in the padding, divided by
+    M.reshape(-1)[:len(space.cells)] = space.diag
+    Ap = space.vector(dtype)
     if x0 is None:
-        r = b.astype(dtype)
+        r = bv.astype(dtype)
     else:
-        x[...] = fill_gaps(x0, mask)
-        K.apply(x, D, sah3, mask, h, Ap, bw)
+        x = space.pack(fill_gaps(x0, mask), dtype)
+        space.apply(x, Ap)
         xAx = K.dot(x, Ap)
-        s = K.dot(x, b) / xAx if xAx > 0.0 else 0.0
+        s = K.dot(x, bv) / xAx if xAx > 0.0 else 0.0
         s = s if math.isfinite(s) else 0.0
         x *= dtype(s)
-        r = (b - s * Ap.astype(np.float64)).astype(dtype)
+        r = (bv - s * Ap.astype(np.float64)).astype(dtype)
     z = r / M
     p = z.copy()
     rz = K.dot(r, z)
@@ -188,7 +238,7 @@ def pcg(D, sah3, mask, h, b, rtol, max_iterations, bw=None, x0=None):
     it = 0
     while True:
         while math.sqrt(rr) > rtol * bn and it < max_iterations:
-            K.apply(p, D, sah3, mask, h, Ap, bw)
+            space.apply(p, Ap)
             alpha = rz / K.dot(p, Ap)
             rz_new, rr = K.cg_update(x, r, p, Ap, M, alpha, z)
             K.cg_direction(p, z, rz_new / rz)
@@ -197,15 +247,15 @@ def pcg(D, sah3, mask, h, b, rtol, max_iterations, bw=None, x0=None):
         if x0 is None:
             break
         # warm start: the true residual decides, not the recursion
-        K.apply(x, D, sah3, mask, h, Ap, bw)
-        r = (b - Ap.astype(np.float64)).astype(dtype)
+        space.apply(x, Ap)
+        r = (bv - Ap.astype(np.float64)).astype(dtype)
         rr = K.dot(r, r)
         if math.sqrt(rr) <= rtol * bn or it >= max_iterations:
             break
         z = r / M
         p = z.copy()
         rz = K.dot(r, z)
-    return x, it, math.sqrt(rr) / bn
+    return space.unpack(x), it, math.sqrt(rr) / bn
 
 
 def grid_geometry(grid, factor: int = 1) -> tuple:

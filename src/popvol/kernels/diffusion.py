@@ -11,9 +11,14 @@ the outside of the region (domain boundary or a cell outside the region): the Ma
 J = phi_face / 2 (no light enters) with Fick's law over the half cell to the face. bw_p (<= 1,
 see diffusion.boundary_weight) makes the staircase of cell faces leak through the area of the
 smooth surface it approximates, not through its own (up to sqrt(3) times larger) area.
-The matrix is symmetric positive definite; it is never stored.
+The matrix is symmetric positive definite. The conjugate gradients run on the region's cells
+alone (diffusion.RowSpace): :func:`region_rows` stores each region cell's diagonal, its six
+neighbours' rows and the faces' conductances once per solve, and :func:`apply_rows` applies A
+from them (often a fifth of the domain's cells are in the region, and no conductance is
+computed again per product).
 
-NumPy twin of boundary_weight: tests/twins.py.
+NumPy twin of boundary_weight: tests/twins.py; A itself is checked against an assembled sparse
+matrix and a direct solve (tests/test_diffusion.py).
 """
 import math
 
@@ -38,51 +43,52 @@ def _neighbour(k, i, j, nbh):
     return (k + (nbh == 0) - (nbh == 1), i + (nbh == 2) - (nbh == 3), j + (nbh == 4) - (nbh == 5))
 
 
-@nb.njit(inline="always", fastmath=True, cache=True)
-def _balance(x, D, sah3, mask, h, k, i, j, bw):
-    """Row (k, i, j) of A: (diagonal, sum over region neighbours q of G_pq x_q)."""
+@nb.njit(fastmath=True, cache=True, nogil=True)
+def region_rows(D, sah3, mask, h, bw, cells, index, nbr, G, diag):
+    """The rows of A at the region's cells, for :func:`apply_rows`: row m is cell cells[m] (a
+    flat C-order index of the grid); ``index`` int64 (grid shape) holds each region cell's row
+    (-1 elsewhere). Writes nbr int64 (n, 6), the row of the region neighbour across each face
+    (in :func:`_neighbour`'s order; -1 where the neighbour is outside the grid or the region),
+    G float64 (n, 6), that face's conductance (0 where there is none), and diag float64 (n,),
+    A's diagonal: sigma_a h^3, then face by face G_pq or the boundary's w_p G_b (docs/METHOD.md
+    Eq. 19). Once per solve."""
     n0, n1, n2 = D.shape
-    Dp = D[k, i, j]
-    diag = sah3[k, i, j]
-    acc = 0.0
-    for nbh in range(6):
-        kq, iq, jq = _neighbour(k, i, j, nbh)
-        if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
-            G = g_face(Dp, D[kq, iq, jq], h)
-            diag += G
-            acc += G * x[kq, iq, jq]
-        else:
-            diag += g_boundary(Dp, h) * bw[k, i, j]
-    return diag, acc
+    for m in range(cells.shape[0]):
+        c = cells[m]
+        k = c // (n1 * n2)
+        i = (c // n2) % n1
+        j = c % n2
+        Dp = D[k, i, j]
+        d = np.float64(sah3[k, i, j])
+        for nbh in range(6):
+            kq, iq, jq = _neighbour(k, i, j, nbh)
+            if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
+                g = g_face(Dp, D[kq, iq, jq], h)
+                d += g
+                nbr[m, nbh] = index[kq, iq, jq]
+                G[m, nbh] = g
+            else:
+                d += g_boundary(Dp, h) * bw[k, i, j]
+                nbr[m, nbh] = -1
+                G[m, nbh] = 0.0
+        diag[m] = d
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def apply(x, D, sah3, mask, h, out, bw):
-    """out = A x (zero outside the region). x, out float32/64; D, sah3, bw float32; mask bool."""
-    n0, n1, n2 = x.shape
-    for kk in nb.prange(n0):
-        k = np.int64(kk)
-        for i in range(n1):
-            for j in range(n2):
-                if mask[k, i, j]:
-                    diag, acc = _balance(x, D, sah3, mask, h, k, i, j, bw)
-                    out[k, i, j] = diag * x[k, i, j] - acc
-                else:
-                    out[k, i, j] = 0.0
-
-
-@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def diagonal(D, sah3, mask, h, out, bw):
-    """The diagonal of A (1 outside the region, so that it can be divided by)."""
-    n0, n1, n2 = D.shape
-    for kk in nb.prange(n0):
-        k = np.int64(kk)
-        for i in range(n1):
-            for j in range(n2):
-                if mask[k, i, j]:
-                    out[k, i, j] = _balance(D, D, sah3, mask, h, k, i, j, bw)[0]   # x unused here
-                else:
-                    out[k, i, j] = 1.0
+def apply_rows(x, nbr, G, diag, out):
+    """out = A x on the region's rows (:func:`region_rows`): x, out float32/64 vectors
+    (rows, 1, L) whose first n entries in C order are the rows (the rest padding, left as they
+    are); per row diag x_p - the sum over its region neighbours q of G_pq x_q, in face order
+    (docs/METHOD.md Eq. 19)."""
+    xf = x.reshape(-1)
+    of = out.reshape(-1)
+    for m in nb.prange(diag.shape[0]):
+        acc = 0.0
+        for f in range(6):
+            q = nbr[m, f]
+            if q >= 0:
+                acc += G[m, f] * xf[q]
+        of[m] = diag[m] * xf[m] - acc
 
 
 @nb.njit(parallel=True, fastmath=False, cache=True, nogil=True)
