@@ -68,6 +68,22 @@ def test_operator_and_solver_match_a_sparse_direct_solve(rng):
     assert res <= 1e-10
 
 
+def test_the_solve_refuses_what_does_not_fit_in_memory(rng, monkeypatch):
+    """diffusion.RowSpace checks its rows' memory before allocating them: with (pretend) 1 MB
+    available a 7x6x5 problem still fits, one of 64^3 cells does not, and the error names the
+    setting to lower, in one line."""
+    import popvol.domains
+    from popvol.errors import PopvolError
+    monkeypatch.setattr(popvol.domains, "available_memory", lambda: 1e6)
+    st, ss, g = random_medium(rng, (7, 6, 5))
+    D, sah3, mask = diffusion.coefficients(st, ss, g, 0.1)
+    diffusion.RowSpace(D, sah3, mask, 0.1, np.ones(mask.shape, np.float32))
+    big = np.ones((64, 64, 64))
+    D, sah3, mask = diffusion.coefficients(big, 0.9 * big, 0.5 * big, 0.1)
+    with pytest.raises(PopvolError, match=r"^method.diffusion_resolution: the diffusion solve's 262144 region cells needs about [^\n]*lower it$"):
+        diffusion.RowSpace(D, sah3, mask, 0.1, np.ones(mask.shape, np.float32))
+
+
 def test_boundary_weight_is_the_smooth_surfaces_share_of_the_staircase():
     """1 / |n|_1 for the unit normal n: 1 on a face-aligned plane, 1/sqrt(2) on a plane at 45
     degrees to two axes, 1/sqrt(3) on one at equal angles to all three (away from the grid's

@@ -45,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .domains import check_memory
 from .kernels import diffusion as K
 from .kernels.sampling import block_sums
 
@@ -162,9 +163,13 @@ class RowSpace:
         self.shape = mask.shape
         self.cells = np.flatnonzero(mask)
         n = len(self.cells)
-        index = np.full(mask.shape, -1, np.int64)
+        # per region cell: its index, 6 neighbours (int32), 6 conductances and the diagonal
+        # (float64); the grid's map to rows (int32)
+        check_memory(n * (8 + 6 * 4 + 7 * 8) + mask.size * 4, "method.diffusion_resolution",
+                     f"the diffusion solve's {n} region cells")
+        index = np.full(mask.shape, -1, np.int32)
         index.reshape(-1)[self.cells] = np.arange(n)
-        self.nbr = np.empty((n, 6), np.int64)
+        self.nbr = np.empty((n, 6), np.int32)
         self.G = np.empty((n, 6))
         self.diag = np.empty(n)
         K.region_rows(D, sah3, mask, h, bw, self.cells, index, self.nbr, self.G, self.diag)
@@ -196,8 +201,8 @@ def pcg(D, sah3, mask, h, b, rtol, max_iterations, bw=None, x0=None):
     """Jacobi-preconditioned conjugate gradients for A x = b. Returns (x, iterations, ||r||/||b||).
     Vectors are float32 when rtol >= 1e-6 (half the memory traffic; sums stay float64), float64
     for tighter tolerances, and hold the region's cells alone (:class:`RowSpace`); x is returned
-    on the grid, 0 outside the region (b must be 0 there). ``bw``: the boundary weights (None: 1,
-    the staircase's own area).
+    on the grid, 0 outside the region (where b is not read). ``bw``: the boundary weights (None:
+    1, the staircase's own area).
 
     ``x0``: an initial guess (warm start; None: x = 0). Its zeros in the region are filled from
     their neighbours (:func:`fill_gaps`), then it is scaled by the Galerkin factor

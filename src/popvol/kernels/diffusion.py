@@ -46,8 +46,8 @@ def _neighbour(k, i, j, nbh):
 @nb.njit(fastmath=True, cache=True, nogil=True)
 def region_rows(D, sah3, mask, h, bw, cells, index, nbr, G, diag):
     """The rows of A at the region's cells, for :func:`apply_rows`: row m is cell cells[m] (a
-    flat C-order index of the grid); ``index`` int64 (grid shape) holds each region cell's row
-    (-1 elsewhere). Writes nbr int64 (n, 6), the row of the region neighbour across each face
+    flat C-order index of the grid); ``index`` int32 (grid shape) holds each region cell's row
+    (-1 elsewhere). Writes nbr int32 (n, 6), the row of the region neighbour across each face
     (in :func:`_neighbour`'s order; -1 where the neighbour is outside the grid or the region),
     G float64 (n, 6), that face's conductance (0 where there is none), and diag float64 (n,),
     A's diagonal: sigma_a h^3, then face by face G_pq or the boundary's w_p G_b (docs/METHOD.md
