@@ -14,10 +14,10 @@ import twins as ref
 from popvol.lights import DirectionalLight, PointLight
 from popvol.medium import Medium
 from popvol.pipeline import solve
-from popvol.kernels.render import MAX_SEGMENT_DEPTH, block_at, dense_blocks_box
+from popvol.kernels.render import MAX_SEGMENT_DEPTH, block_at
 from popvol.kernels.source import in_scattering_source
-from popvol.renderer import (BLOCK, densest_in_blocks, field_bundles, occupied_cells, render, render_inputs,
-                             skip_blocks)
+from popvol.renderer import (BLOCK, dense_blocks_box, densest_in_blocks, field_bundles, occupied_cells, render,
+                             render_inputs, skip_blocks)
 from popvol.scene import Method, Scene, apply_overrides
 
 
@@ -412,7 +412,7 @@ def small_cloud_in_a_large_grid(n=64):
 
 def test_marching_only_the_box_of_non_empty_blocks_changes_no_pixel():
     """A small cloud in a large grid, seen whole, with the image's corners beside it: the march
-    starts and stops at the box of the non-empty blocks (kernels.render.dense_blocks_box) and
+    starts and stops at the box of the non-empty blocks (renderer.dense_blocks_box) and
     skips the cells of empty voxels (renderer.occupied_cells); the image is bitwise that of
     marching every sample, with and without jitter, light by light and with the combined
     source."""
@@ -420,8 +420,7 @@ def test_marching_only_the_box_of_non_empty_blocks_changes_no_pixel():
     scene.camera = Camera([0.5, 0.6, 1.6], [0.5, 0.5, 0.5], [0, 1, 0], 50.0, 40, 24)
     scene.medium = small_cloud_in_a_large_grid()
     sol = solve(scene)
-    medium = render_inputs(scene, sol)[0]
-    lo, hi = dense_blocks_box(medium)
+    lo, hi = dense_blocks_box(scene.medium, render_inputs(scene, sol)[0][9])
     assert np.all(np.array(lo) > 0.1) and np.all(np.array(hi) < 0.9)      # well inside the unit cube
     for jitter in (True, False):
         for combined in (True, False):
@@ -433,14 +432,14 @@ def test_marching_only_the_box_of_non_empty_blocks_changes_no_pixel():
 
 
 def test_points_outside_the_box_of_non_empty_blocks_lie_in_empty_blocks(rng):
-    """kernels.render.dense_blocks_box against the coarse grid itself: 20,000 random points of the
+    """renderer.dense_blocks_box against the coarse grid itself: 20,000 random points of the
     medium's box outside it are each in a block that block_at calls empty, and every
     non-empty block's centre is inside it; a grid without density gives an empty box."""
     scene = three_suns(blob_scene([0.3, -0.6, 0.74], w=8, h=6))
     scene.medium = small_cloud_in_a_large_grid()
     medium = render_inputs(scene, solve(scene))[0]
-    lo, hi = (np.array(b) for b in dense_blocks_box(medium))
     blocks, size = medium[9], BLOCK * scene.medium.voxel_size
+    lo, hi = dense_blocks_box(scene.medium, blocks)
     outside = 0
     for x in rng.uniform(0.0, 1.0, (20000, 3)):
         if np.any(x < lo) or np.any(x > hi):
@@ -450,8 +449,7 @@ def test_points_outside_the_box_of_non_empty_blocks_lie_in_empty_blocks(rng):
     for b in np.argwhere(blocks > 0):
         centre = scene.medium.origin - 0.5 * scene.medium.voxel_size + (b + 0.5) * size
         assert np.all(centre > lo) and np.all(centre < hi)
-    empty = (np.zeros_like(medium[0]),) + medium[1:9] + (skip_blocks(densest_in_blocks(np.zeros_like(medium[0]), BLOCK)),) + medium[10:]
-    lo, hi = dense_blocks_box(empty)
+    lo, hi = dense_blocks_box(scene.medium, skip_blocks(densest_in_blocks(np.zeros_like(medium[0]), BLOCK)))
     assert np.all(np.array(lo) > np.array(hi))
 
 

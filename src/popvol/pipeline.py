@@ -24,10 +24,11 @@ import numba
 import numpy as np
 
 from .diffusion import solve_diffusion, warm_guess
-from .domains import available_memory, check_memory, small_pages
+from .domains import BYTES_PER_DOMAIN_CELL, available_memory, check_memory, small_pages
 from .errors import PopvolError
 from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
+from .lights.point import BYTES_PER_SPHERICAL_CELL
 from .results import DomainSolution, PointFields, Solution
 from .walk import replace_direct
 
@@ -37,9 +38,8 @@ from .walk import replace_direct
 #: bench's wdas_sun_sky x0.80, the demo x0.74, demo_dusk x0.94 and wdas_side x0.84 of the time,
 #: which these scenes' cells put at 0.65-0.8)
 PARALLEL_EFFICIENCY = 0.7
-#: a domain's working set per cell, at most (lights.point.BYTES_PER_SPHERICAL_CELL; a box
-#: domain's, domains.BYTES_PER_DOMAIN_CELL, is less)
-BYTES_PER_CELL = 4 * 16
+#: a domain's working set per cell, at most (a spherical or a box domain's)
+BYTES_PER_CELL = max(BYTES_PER_SPHERICAL_CELL, BYTES_PER_DOMAIN_CELL)
 
 
 def check_decay(medium, method) -> None:

@@ -150,8 +150,30 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     dense = bool(blocks.size) and substeps(medium, float(blocks.max()), step) > 1
     if jitter is None:                    # one sample: the pixel centre is closer to the pixel's mean
         jitter = m.spp > 1
-    march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense, int(m.max_step), thick_faces(med))
+    march = (step, int(m.spp), int(m.seed), bool(jitter), bool(skip), dense, int(m.max_step), thick_faces(med),
+             dense_blocks_box(med, blocks))
     return medium, lights, grid, spherical, view, camera, march, background_map(scene)
+
+
+def dense_blocks_box(medium, blocks: np.ndarray) -> np.ndarray:
+    """float64 (2, 3): the world box (lo, hi) of the non-empty blocks (value >= 0) of the
+    march's coarse grid ``blocks`` (:func:`skip_blocks`), grown by a thousandth of a voxel so
+    that a point outside it is outside by more than rounding: every point of the medium's box
+    outside it lies in an empty block, where the density is 0. Where a block on the grid's edge
+    is non-empty the box reaches the medium's box there, as the blocks' clamped index does
+    (block b holds the voxel index (x - origin) / voxel in [b BLOCK, (b + 1) BLOCK)). An empty
+    box (lo > hi) where every block is empty."""
+    non_empty = blocks >= 0
+    if not non_empty.any():
+        return np.array([[1.0] * 3, [0.0] * 3])
+    box = np.array(medium.bounds, np.float64)
+    h = np.asarray(medium.voxel_size, np.float64)
+    for a, s in enumerate(occupied_box(non_empty, 0)):
+        if s.start > 0:
+            box[0, a] = medium.origin[a] + s.start * BLOCK * h[a] - 1e-3 * h[a]
+        if s.stop < blocks.shape[a]:
+            box[1, a] = medium.origin[a] + s.stop * BLOCK * h[a] + 1e-3 * h[a]
+    return box
 
 
 def thick_faces(medium) -> bool:

@@ -36,7 +36,7 @@ Two shortcuts, neither changing which samples are taken:
   a sample in an empty block jumps to the first sample past them. Samples sit at
   t0 + (i + jt) step, not at an accumulated t, so the jump leaves every other sample where it
   was: the image is bitwise the same without skipping. For the same reason a ray is marched
-  only across the box of the non-empty blocks (:func:`dense_blocks_box`), and a sample whose
+  only across the box of the non-empty blocks (renderer.dense_blocks_box), and a sample whose
   trilinear stencil reads only empty voxels (one byte per cell, renderer.occupied_cells) does
   not interpolate the density.
 
@@ -56,7 +56,7 @@ The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` b
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
   view       (source, near, points)                         the combined source, if any
   camera     (origin, basis, tan_half, width, height)
-  march      (step, spp, seed, jitter, skip, dense, coarse, edge)
+  march      (step, spp, seed, jitter, skip, dense, coarse, edge, box)
 (types in :func:`render_kernel`). NumPy twin: tests/twins.py (render_pixel).
 """
 import math
@@ -212,7 +212,7 @@ def pixel_sample(march, px, py, s):
     """Sample s of pixel (px, py): its sub-pixel offsets (jx, jy) and the offset jt of the
     march's sample points within their segments, each in [0, 1): hashed from the seed, or 1/2
     without jitter (pixel centres and segment midpoints)."""
-    step, spp, seed, jitter, skip, dense, coarse, edge = march
+    step, spp, seed, jitter, skip, dense, coarse, edge, box = march
     if jitter:
         return (hash_uniform(seed, px, py, s, 0), hash_uniform(seed, px, py, s, 1),
                 hash_uniform(seed, px, py, s, 2))
@@ -482,45 +482,6 @@ def block_at(medium, x, d):
     return value, max(min(ex, ey, ez), 0.0)
 
 
-@nb.njit(**ON_ITS_OWN)
-def dense_blocks_box(medium):
-    """The world box (lo, hi: 3-tuples) of the coarse grid's non-empty blocks (block_at's value
-    >= 0), grown by a thousandth of a voxel so that a point outside it is outside by more than
-    rounding: every point of the medium's box outside it lies in an empty block, where the
-    density is 0. Where a block on the grid's edge is non-empty the box reaches the medium's
-    box there, as the blocks' clamped index does. The medium's box without the grid (shape (0,
-    0, 0)); an empty box (lo > hi) where every block is empty."""
-    density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, bits, occupied = medium
-    if blocks.shape[0] == 0:
-        return (lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2])
-    n0, n1, n2 = blocks.shape
-    f0, f1, f2, l0, l1, l2 = n0, n1, n2, -1, -1, -1     # the first and last non-empty block along each axis
-    for bx in range(n0):
-        for by in range(n1):
-            for bz in range(n2):
-                if blocks[bx, by, bz] >= 0.0:
-                    f0, f1, f2 = min(f0, bx), min(f1, by), min(f2, bz)
-                    l0, l1, l2 = max(l0, bx), max(l1, by), max(l2, bz)
-    if l0 < 0:
-        return (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)
-    size = 1 << bits
-    # block b holds the clamped voxel index u = (x - origin) / voxel in [b size, (b + 1) size)
-    return ((_box_face(lo[0], origin[0], voxel[0], f0 * size, f0 == 0, -1.0),
-             _box_face(lo[1], origin[1], voxel[1], f1 * size, f1 == 0, -1.0),
-             _box_face(lo[2], origin[2], voxel[2], f2 * size, f2 == 0, -1.0)),
-            (_box_face(hi[0], origin[0], voxel[0], (l0 + 1) * size, l0 == n0 - 1, 1.0),
-             _box_face(hi[1], origin[1], voxel[1], (l1 + 1) * size, l1 == n1 - 1, 1.0),
-             _box_face(hi[2], origin[2], voxel[2], (l2 + 1) * size, l2 == n2 - 1, 1.0)))
-
-
-@nb.njit(inline="always", fastmath=True, cache=True)
-def _box_face(edge, o, h, u, at_edge, side):
-    """Along one axis, a face of :func:`dense_blocks_box`: the medium box's ``edge`` where the
-    blocks reach the grid's edge (``at_edge``), else the world coordinate of voxel index u
-    (origin o, voxel h) moved outward (``side`` -1 below, +1 above) by a thousandth of a voxel."""
-    return edge if at_edge else o + u * h + side * 1e-3 * h
-
-
 @nb.njit(inline="always", fastmath=True, cache=True)
 def substeps(medium, rho_max, ds):
     """How many parts a march segment of length ds is split into, in a block whose densest
@@ -732,7 +693,7 @@ def march_ray(medium, lights, grid, spherical, view, o, d, segments):
     block jumps to the first sample past the empty blocks around it that the grid vouches for:
     their density is 0, so they add nothing, and the samples taken are the same; for the same
     reason the march starts at the last sample a step or more before t_in and stops at t_out
-    (the ray's span in :func:`dense_blocks_box`, outside which every block is empty). With ``edge``
+    (the ray's span in the march's ``box``, outside which every block is empty). With ``edge``
     (some voxel on the grid's faces is at least EDGE_DEPTH thick), a sample in the grid's outer
     half cell adds what the clamped fields miss of the suns' single scattering there
     (:func:`edge_single_scattering`)."""
@@ -842,7 +803,9 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         those); coarse: the most steps one sample spans in thin blocks (1: every segment one
         step; method.max_step); edge: whether some voxel on the grid's faces is at least
         EDGE_DEPTH mean free paths thick, so that samples in the grid's outer half cell take the
-        suns' single scattering there exactly (edge_single_scattering).
+        suns' single scattering there exactly (edge_single_scattering); box float64 (2, 3): the
+        world box (lo, hi) of the coarse grid's non-empty blocks, outside which the march takes
+        no sample when it skips (renderer.dense_blocks_box; lo > hi where every block is empty).
     background: float32 (1, 1, 3) (a constant) or (H, 2H, 3) (a lat-long environment map, see
         background_radiance).
     """
@@ -852,8 +815,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     fields, offset, shape, params, frame, full = spherical
     source, near, points = view
     o, basis, tan_half, width, height = camera
-    step, spp, seed, jitter, skip, dense, coarse, edge = march
-    box_lo, box_hi = dense_blocks_box(medium)
+    step, spp, seed, jitter, skip, dense, coarse, edge, box = march
     for lane in nb.prange(lanes):
         # The bundles are rebuilt here from their arrays, so that the helpers read the arrays
         # themselves: with the bundles as passed in, the march took and dropped references to
@@ -865,7 +827,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         spherical_ = (fields, offset, shape, params, frame, full)
         view_ = (source, near, points)
         camera_ = (o, basis, tan_half, width, height)
-        march_ = (step, spp, seed, jitter, skip, dense, coarse, edge)
+        march_ = (step, spp, seed, jitter, skip, dense, coarse, edge, box)
         for py in range(lane, height, lanes):
             for px in range(width):
                 acc0 = acc1 = acc2 = 0.0
@@ -873,7 +835,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
                     jx, jy, jt = pixel_sample(march_, px, py, s)
                     d = camera_ray(camera_, px + jx, py + jy)
                     t0, t1 = ray_box(o, d, lo, hi)
-                    t_in, t_out = ray_box(o, d, box_lo, box_hi) if skip else (t0, t1)
+                    t_in, t_out = ray_box(o, d, box[0], box[1]) if skip else (t0, t1)
                     L0, L1, L2, T0, T1, T2 = march_ray(medium_, lights_, grid_, spherical_, view_, o, d,
                                                        (t0, t1, step, jt, skip, dense, coarse, edge, t_in, t_out))
                     b0, b1, b2 = background_radiance(background, d)
