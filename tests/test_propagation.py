@@ -4,6 +4,7 @@ agreement of the two solvers, and the slab energy balance against Monte Carlo
 import numpy as np
 import pytest
 
+import popvol
 from popvol.kernels import binned as KB
 from popvol.kernels import propagation as K
 import twins as ref
@@ -437,20 +438,55 @@ def test_slab_paper_rule_misses_reflection_known_bias_change_detector():
     assert R < 0.5 * mc["R"]
 
 
-def test_domain_to_world_equals_numpy_twin(rng):
+@pytest.mark.parametrize("n_fields", [1, 3, 7])
+def test_domain_to_world_equals_numpy_twin(rng, n_fields):
     """Fields of a rotated light domain on the world grid: several fields with one set of
-    weights, only where needed (zeros elsewhere), clamped to the domain's edge cells."""
+    weights, only where needed (zeros elsewhere), clamped to the domain's edge cells; one field
+    up to the most a call takes (kernels.sampling.MAX_WORLD_FIELDS)."""
     from popvol.domains import directional_domain
-    from popvol.kernels.sampling import domain_to_world
+    from popvol.kernels.sampling import MAX_WORLD_FIELDS, domain_to_world
+    assert n_fields <= MAX_WORLD_FIELDS
     med = Medium(np.ones((10, 12, 9), np.float32), [0.1, 0.08, 0.12], [0.3, -0.2, 0.1])
     dom = directional_domain(med, np.array([0.3, -0.8, 0.52]), 7)
-    fields = tuple(rng.random(dom.shape).astype(np.float32) for _ in range(3))
+    fields = tuple(rng.random(dom.shape).astype(np.float32) for _ in range(n_fields))
     needed = rng.random(med.shape) < 0.6
     outs = tuple(np.zeros(med.shape, np.float32) for _ in fields)
     domain_to_world(fields, dom.frame, dom.origin, dom.h, med.origin, med.voxel_size, outs, needed)
     for f, out in zip(fields, outs):
         np.testing.assert_allclose(out, ref.domain_to_world(f, dom.frame, dom.origin, dom.h, med.origin,
                                                             med.voxel_size, needed), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("diffusion_resolution", [16, 8])
+def test_a_suns_fields_on_the_world_grid_are_its_domains_own(diffusion_resolution):
+    """A sun's walk and diffusion fields on the medium's grid, as the solve writes them (in one
+    pass where the diffusion stage runs on the walk's own cells, 16 here; apart where it runs
+    on blocks of them, 8), against each field of its domain mapped on its own (the world
+    component c of the flux being sum_a frame[a, c] J_a, the grid's axes a)."""
+    from popvol.kernels.sampling import domain_to_world
+    from popvol.pipeline import seen_voxels
+    s = popvol.scene_from_dict({
+        "medium": {"type": "procedural", "resolution": 16, "seed": 3, "scale": 40.0, "albedo": 0.99, "g": 0.85},
+        "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": [1.0, 1.0, 1.0]}],
+        "camera": {"width": 16, "height": 16},
+        "method": {"resolution": 16, "diffusion_resolution": diffusion_resolution}})
+    sol = popvol.solve(s)
+    ds = sol.domains[0]
+    med, dom, d = s.medium, ds.domain, ds.result.diffusion
+    assert d is not None and (d.h == dom.h) == (diffusion_resolution == 16)
+    needed = seen_voxels(med)
+
+    def world(field, h):
+        out = np.zeros(med.shape, np.float32)
+        domain_to_world((field,), dom.frame, dom.origin, h, med.origin, med.voxel_size, (out,), needed)
+        return out
+    for got, field in ((sol.phi, ds.result.phi), (sol.phia, ds.result.phia), (sol.direct, ds.result.direct)):
+        np.testing.assert_array_equal(got[0, 0], world(field, dom.h))
+    np.testing.assert_array_equal(sol.phid[0, 0], world(d.phi, d.h))
+    for c in range(3):
+        J = sum(np.float32(dom.frame[a, c]) * d.flux[a] for a in range(3))
+        np.testing.assert_allclose(sol.flux[0, 0, c], world(J, d.h), rtol=1e-5, atol=1e-6 * np.abs(J).max())
+    assert sol.phid[0, 0].max() > 0 and np.abs(sol.flux[0, 0]).max() > 0
 
 
 @pytest.mark.parametrize("solver", SOLVERS)

@@ -309,15 +309,22 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
             ordinate_fields(ds.result, ds.domain, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]),
                             phid[i, ch], flux[i, ch])
             lobe_cap[i] = 1.0
-        else:
-            ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
-        if ds.result.diffusion is not None:
-            d, grid = ds.result.diffusion, ds.diffusion_grid
+            return ds, time.perf_counter() - t0
+        d, grid = ds.result.diffusion, ds.diffusion_grid
+        diffuse = ()                    # (field, out) pairs of the diffusion stage
+        if d is not None:
             # world component c of J = sum over the grid axes a of frame[a, c] J_a
             J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
-            domain_to_world((d.phi, J[0], J[1], J[2]), grid.frame, grid.origin, d.h, med.origin,
-                            med.voxel_size, (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1], flux[i, ch, 2]),
-                            needed)
+            diffuse = tuple(zip((d.phi, J[0], J[1], J[2]), (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1],
+                                                             flux[i, ch, 2])))
+        if grid is ds.domain and d.h == ds.domain.h and d.phi.shape == tuple(ds.domain.shape):
+            # the diffusion stage ran on the walk's own cells: one pass maps both
+            ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]), diffuse)
+            return ds, time.perf_counter() - t0
+        ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
+        if diffuse:
+            fields, outs = zip(*diffuse)
+            domain_to_world(fields, grid.frame, grid.origin, d.h, med.origin, med.voxel_size, outs, needed)
         return ds, time.perf_counter() - t0
 
     # stage seconds are summed over the domains: solved side by side, they overlap

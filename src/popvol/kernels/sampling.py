@@ -98,8 +98,9 @@ def resample(grid, inv_voxel, grid_origin, frame, dom_origin, h, shape, clamp, o
                     out[k, i, j] = trilinear(grid, x, y, z)
 
 
-#: the most fields one domain_to_world call samples (a six-ordinate walk's five)
-MAX_WORLD_FIELDS = 5
+#: the most fields one domain_to_world call samples (a sun's walk's three and its diffusion
+#: stage's four, on the walk's own cells: pipeline.solve)
+MAX_WORLD_FIELDS = 7
 
 
 def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, needed):
@@ -150,6 +151,10 @@ def _domain_to_world(fields, n_fields, frame, dom_origin, h, world_origin, voxel
                     outs[3][x, y, z] = interpolate(fields[3], corners)
                 if n_fields > 4:
                     outs[4][x, y, z] = interpolate(fields[4], corners)
+                if n_fields > 5:
+                    outs[5][x, y, z] = interpolate(fields[5], corners)
+                if n_fields > 6:
+                    outs[6][x, y, z] = interpolate(fields[6], corners)
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)

@@ -70,10 +70,12 @@ class LightDomain(Protocol):
     def hand_over(self, walk, optics: Optics, medium, method, channel: int) -> HandOver:
         """The walk's handed-over light on a rectilinear grid for the diffusion stage."""
 
-    def world_fields(self, walk, medium, needed: np.ndarray, outs: tuple) -> None:
+    def world_fields(self, walk, medium, needed: np.ndarray, outs: tuple, also: tuple = ()) -> None:
         """Write phi, phi a and the direct part on the medium's world grid into ``outs`` (three
         float32 (nx, ny, nz) arrays, zeroed) where ``needed``; a light whose fields the renderer
-        reads in its own domain writes nothing."""
+        reads in its own domain writes nothing. ``also``: (field, out) pairs of more fields on
+        the domain's own cells (its diffusion stage's, where that runs on them), written in
+        the same pass."""
 
 
 class Light:

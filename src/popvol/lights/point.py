@@ -284,8 +284,11 @@ class SphericalDomain:
         return HandOver(grid, source, np.zeros_like(source), grid_optics, 1,
                         ("transmitted",) * 3, lost)
 
-    def world_fields(self, walk, medium, needed, outs) -> None:
-        """Nothing: the renderer looks the walk's fields up in this domain (render_block)."""
+    def world_fields(self, walk, medium, needed, outs, also=()) -> None:
+        """Nothing: the renderer looks the walk's fields up in this domain (render_block). Its
+        diffusion grid is not the domain, so ``also`` is empty."""
+        if also:
+            raise ValueError("a spherical domain has no fields on its own cells to map to the world grid")
 
     def render_block(self, walk) -> np.ndarray:
         """float32 (3, n_cells): r^2 phi, r^2 phia and r^2 phi_dir, C-ordered (n_r, n_theta,

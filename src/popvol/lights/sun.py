@@ -140,7 +140,9 @@ class SunDomain(DirectionalDomain):
         """The diffusion grid is the domain itself, in blocks of diffusion_factor^3 cells."""
         return HandOver(self, walk.handed[0], walk.handed[1], optics, self.block)
 
-    def world_fields(self, walk, medium, needed, outs) -> None:
+    def world_fields(self, walk, medium, needed, outs, also=()) -> None:
         fields = (walk.phi, walk.phia) + (() if walk.direct is None else (walk.direct,))
-        domain_to_world(fields, self.frame, self.origin, self.h, medium.origin, medium.voxel_size,
-                        outs[:len(fields)], needed)
+        outs = tuple(outs[:len(fields)])
+        for field, out in also:          # one stencil per voxel serves them all
+            fields, outs = fields + (field,), outs + (out,)
+        domain_to_world(fields, self.frame, self.origin, self.h, medium.origin, medium.voxel_size, outs, needed)
