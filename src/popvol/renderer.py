@@ -141,7 +141,11 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     elif combined and grid_lit > 0:
         source = np.zeros(med.density.shape + (3,), np.float32)
     if combined and grid_lit > 0:         # the single scattering (gathering), or all of it
-        in_scattering_source(medium, lights, grid, spherical, np.asarray(cam.origin, np.float64),
+        # gathering, only the lights with an unscattered part have a single scattering (the
+        # others' fields are 0 in Solution.single_scattering)
+        lit, (lit_grid, lit_spherical) = (only_lights(solution.unscattered, lights, grid, spherical) if gathering
+                                          else (lights, (grid, spherical)))
+        in_scattering_source(medium, lit, lit_grid, lit_spherical, np.asarray(cam.origin, np.float64),
                              seen, source, numba.get_num_threads())
     near = 0.0 if gathering else float(NEAR_VOXELS * med.voxel_size.min())
     view = (source, near, np.flatnonzero(solution.is_point).astype(np.int64))
