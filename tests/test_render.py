@@ -288,20 +288,22 @@ def three_suns(scene):
 
 def test_combined_source_kernel_equals_numpy_twin():
     """kernels/source.py against tests/twins.py on a small RGB medium with per-voxel g and empty
-    space, lit by two suns and a point light, with the diffusion stage: the suns' walk and
-    diffuse lobes and the point light's diffuse lobe, at the voxels the renderer reads, 0
-    elsewhere."""
+    space, lit by two suns, a point light and a broad sun without an unscattered part (a0 < 1,
+    as an environment's lights), with the diffusion stage: the suns' walk and diffuse lobes and
+    the point light's diffuse lobe, at the voxels the renderer reads, 0 elsewhere."""
     scene = blob_scene([0.3, -0.6, 0.74], w=8, h=6, n=16, peak_tau=3.0, albedo=0.9, g=0.5)
     med = cut_blob(n=16, peak_tau=3.0)
     g = np.linspace(0.2, 0.7, 16, dtype=np.float32)[:, None, None] * np.ones(med.shape, np.float32)
     scene.medium = Medium(med.density, med.voxel_size, med.origin, scale=med.scale * [1.0, 0.7, 0.4],
                           albedo=[0.9, 0.8, 0.6], g=g)
-    scene.lights += [DirectionalLight([-0.5, -0.5, 0.2], [0.2, 0.3, 0.4]), PointLight([0.3, 0.62, 0.45], [1.0, 0.8, 0.6])]
+    scene.lights += [DirectionalLight([-0.5, -0.5, 0.2], [0.2, 0.3, 0.4]), PointLight([0.3, 0.62, 0.45], [1.0, 0.8, 0.6]),
+                     DirectionalLight([0.1, -0.9, -0.3], [0.3, 0.2, 0.1], a0=0.4)]
     scene.method.isotropic = "diffusion"
     scene.method.handover_scale = 20.0
     scene.method.gather = 0                 # the fields' lobes light every voxel, as in the twin
     sol = solve(scene)
-    assert list(sol.is_point) == [False, False, True] and sol.phid.max() > 0
+    assert list(sol.is_point) == [False, False, True, False] and sol.phid.max() > 0
+    assert list(sol.unscattered) == [True, True, True, False] and sol.phi[3].max() > 0
     source = render_inputs(scene, sol)[4][0]
     twin = ref.in_scattering_source(scene, sol)
     assert source.shape == scene.medium.shape + (3,) and source.dtype == np.float32

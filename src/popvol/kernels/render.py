@@ -291,6 +291,15 @@ def walk_lobes(p, pa, pdir, mu, g):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
+def rest_lobe(p, pa, mu, g):
+    """:func:`walk_lobes` of a light without an unscattered part (phi_dir = 0 everywhere: an
+    environment's lights): the one lobe (phi, g A), A = phia / phi, by the same arithmetic, so
+    the same bits."""
+    p = max(p, 0.0)
+    return p * f_hg(mu, _clamp_g(g * (pa / max(p, TINY))))
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
 def diffuse_lobe_axis(phid, flux, corners, g, cap):
     """The diffusion stage's light as one lobe about its own flux J, seen through the phase:
     (phi_d, J/|J| (3 numbers), g A_d), A_d = min(|J| / phi_d, cap) (supplement Eq. 3;

@@ -17,7 +17,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .render import lobe_toward, walk_lobes
+from .render import lobe_toward, rest_lobe, walk_lobes
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
@@ -66,7 +66,7 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out, lane
                         if walk:
                             walk_terms(phi[l, c, i, j, k0:k1], phia[l, c, i, j, k0:k1], direct[l, c, i, j, k0:k1],
                                        (direction[l, 0], direction[l, 1], direction[l, 2]), view[:, :n], g,
-                                       g_const, terms)
+                                       g_const, unscattered[l], terms)
                         else:
                             terms[:n] = 0.0
                         if has_diffuse:
@@ -99,20 +99,26 @@ def view_directions(offset, hz, view):
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def walk_terms(phi, phia, direct, sun, view, g, g_const, terms):
+def walk_terms(phi, phia, direct, sun, view, g, g_const, unscattered, terms):
     """terms[k] = render.walk_lobes of the run's fields (float32 (n,)) toward the camera
     (``view`` from :func:`view_directions`; ``sun`` the light's direction of travel), per unit
-    power; g: the run's anisotropy (n,), or its one value with ``g_const``."""
+    power; g: the run's anisotropy (n,), or its one value with ``g_const``. A light without an
+    ``unscattered`` part has its one lobe (render.rest_lobe: the same bits), ``direct`` not read."""
     s0, s1, s2 = sun
-    if g_const:                      # a loop per case: no branch in either
-        gc = g[0]
-        for k in range(phi.shape[0]):
-            mu = -(s0 * view[0, k] + s1 * view[1, k] + s2 * view[2, k])
-            terms[k] = walk_lobes(phi[k], phia[k], direct[k], mu, gc)
+    gc = g[0]
+    n = phi.shape[0]
+    if unscattered and g_const:     # a loop per case: no branch in any
+        for k in range(n):
+            terms[k] = walk_lobes(phi[k], phia[k], direct[k], -(s0 * view[0, k] + s1 * view[1, k] + s2 * view[2, k]), gc)
+    elif unscattered:
+        for k in range(n):
+            terms[k] = walk_lobes(phi[k], phia[k], direct[k], -(s0 * view[0, k] + s1 * view[1, k] + s2 * view[2, k]), g[k])
+    elif g_const:
+        for k in range(n):
+            terms[k] = rest_lobe(phi[k], phia[k], -(s0 * view[0, k] + s1 * view[1, k] + s2 * view[2, k]), gc)
     else:
-        for k in range(phi.shape[0]):
-            mu = -(s0 * view[0, k] + s1 * view[1, k] + s2 * view[2, k])
-            terms[k] = walk_lobes(phi[k], phia[k], direct[k], mu, g[k])
+        for k in range(n):
+            terms[k] = rest_lobe(phi[k], phia[k], -(s0 * view[0, k] + s1 * view[1, k] + s2 * view[2, k]), g[k])
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
