@@ -57,12 +57,16 @@ import os
 import time
 from pathlib import Path
 
+import sys
+
 import numba as nb
 import numpy as np
 
 import popvol
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from montecarlo import _scatter            # noqa: E402  (HG sampling, the tests' oracle's)
 CACHE = Path("/tmp/fl")
 BANDS = [(0.0, 0.5), (0.5, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, math.inf)]
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -93,34 +97,35 @@ def _density(rho, x, y, z):
 
 
 @nb.njit(inline="always")
-def _hg_cos(g):
-    u = np.random.random()
-    if abs(g) < 1e-6:
-        return 2.0 * u - 1.0
-    t = (1.0 - g * g) / (1.0 - g + 2.0 * g * u)
-    return min(1.0, max(-1.0, (1.0 + g * g - t * t) / (2.0 * g)))
-
-
-@nb.njit(inline="always")
-def _scatter(ux, uy, uz, g):
-    ct = _hg_cos(g)
-    st = math.sqrt(max(0.0, 1.0 - ct * ct))
-    ph = 2.0 * math.pi * np.random.random()
-    cp, sp = math.cos(ph), math.sin(ph)
-    if abs(uz) > 0.99999:
-        return st * cp, st * sp, ct * (1.0 if uz > 0 else -1.0)
-    den = math.sqrt(1.0 - uz * uz)
-    nx = st * (ux * uz * cp - uy * sp) / den + ux * ct
-    ny = st * (uy * uz * cp + ux * sp) / den + uy * ct
-    nz = -st * cp * den + uz * ct
-    n = math.sqrt(nx * nx + ny * ny + nz * nz)
-    return nx / n, ny / n, nz / n
-
-
-@nb.njit(inline="always")
 def _f_hg(mu, g):
     d = 1.0 + g * g - 2.0 * g * mu
     return (1.0 - g * g) * INV_4PI / (d * math.sqrt(d))
+
+
+@nb.njit(inline="always")
+def _first_crossing(p, u, i, b):
+    """Along one axis, a flight from p in direction u within block i (blocks of b units): the
+    step to the next block (-1, 0, 1), the distance to its first block face and between faces."""
+    if u > 0.0:
+        return 1, ((i + 1) * b - p) / u, b / u
+    if u < 0.0:
+        return -1, (i * b - p) / u, -b / u
+    return 0, 1e300, 1e300
+
+
+@nb.njit(inline="always")
+def _to_box_exit(px, py, pz, ux, uy, uz, n, far):
+    """The distance from p along u to where it leaves the box [0, n] (q coordinates), at most
+    ``far``."""
+    te = far
+    for ax in range(3):
+        p = px if ax == 0 else (py if ax == 1 else pz)
+        u = ux if ax == 0 else (uy if ax == 1 else uz)
+        if u > 0.0:
+            te = min(te, (n[ax] - p) / u)
+        elif u < 0.0:
+            te = min(te, -p / u)
+    return te
 
 
 @nb.njit(inline="always")
@@ -130,25 +135,9 @@ def _tally(tal, wo, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
     ix = min(max(int(px / b), 0), nc[0] - 1)
     iy = min(max(int(py / b), 0), nc[1] - 1)
     iz = min(max(int(pz / b), 0), nc[2] - 1)
-    big = 1e300
-    if ux > 0.0:
-        sx, tx, dx = 1, ((ix + 1) * b - px) / ux, b / ux
-    elif ux < 0.0:
-        sx, tx, dx = -1, (ix * b - px) / ux, -b / ux
-    else:
-        sx, tx, dx = 0, big, big
-    if uy > 0.0:
-        sy, ty, dy = 1, ((iy + 1) * b - py) / uy, b / uy
-    elif uy < 0.0:
-        sy, ty, dy = -1, (iy * b - py) / uy, -b / uy
-    else:
-        sy, ty, dy = 0, big, big
-    if uz > 0.0:
-        sz, tz, dz = 1, ((iz + 1) * b - pz) / uz, b / uz
-    elif uz < 0.0:
-        sz, tz, dz = -1, (iz * b - pz) / uz, -b / uz
-    else:
-        sz, tz, dz = 0, big, big
+    sx, tx, dx = _first_crossing(px, ux, ix, b)
+    sy, ty, dy = _first_crossing(py, uy, iy, b)
+    sz, tz, dz = _first_crossing(pz, uz, iz, b)
     t = 0.0
     while True:
         tn = min(tx, ty, tz, L)
@@ -233,15 +222,7 @@ def _mc(rho, sig_vox, albedo, g, d, e1, e2, centre, half1, half2, b, wo, n_photo
         scattered = False
         while True:
             s = -math.log(1.0 - np.random.random()) / maj
-            te = 1e300
-            for ax in range(3):
-                p = px if ax == 0 else (py if ax == 1 else pz)
-                u = ux if ax == 0 else (uy if ax == 1 else uz)
-                if u > 0.0:
-                    te = min(te, (nq[ax] - p) / u)
-                elif u < 0.0:
-                    te = min(te, -p / u)
-            te = max(te, 0.0)
+            te = max(_to_box_exit(px, py, pz, ux, uy, uz, nq, 1e300), 0.0)
             L = min(s, te)
             _tally(tal, wo, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g)
             if s >= te:
@@ -278,14 +259,7 @@ def _transmittance_to(rho, sig_vox, cam, out, mask):
                 vx, vy, vz = cam[0] - px, cam[1] - py, cam[2] - pz
                 r = math.sqrt(vx * vx + vy * vy + vz * vz)
                 vx, vy, vz = vx / r, vy / r, vz / r
-                te = r
-                for ax in range(3):
-                    p = px if ax == 0 else (py if ax == 1 else pz)
-                    u = vx if ax == 0 else (vy if ax == 1 else vz)
-                    if u > 0.0:
-                        te = min(te, (n[ax] - p) / u)
-                    elif u < 0.0:
-                        te = min(te, -p / u)
+                te = _to_box_exit(px, py, pz, vx, vy, vz, n, r)
                 m = max(int(math.ceil(te / 0.25)), 1)
                 h = te / m
                 tau = 0.0
