@@ -191,7 +191,7 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
     directions one after another (so the sum does not depend on the number of threads). One
     colour has its own sweep (:func:`_sweep_one_colour`): the same arithmetic without the loop
-    over channels, about 20 % faster.
+    over channels.
     dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium: the render
     kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
     lanes = out.shape[0]
