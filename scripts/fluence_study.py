@@ -20,8 +20,10 @@ popvol resolution (the light domain's; the medium's voxels are the same at every
   between tentative collisions), so each block gets the integral of the fluence over its
   volume / its volume: the unscattered fluence (photons before their first real collision),
   and for the scattered light (after >= 1 real collision) its fluence, first-moment vector
-  (track length x direction) and its in-scattered source toward the scene's camera,
-  int L_s(w) f_hg(w . w_o; g) dw, w_o the unit vector from the block's centre to the camera.
+  (track length x direction), its second Legendre moment about the sun's direction d
+  (track length x P2(u . d), P2(x) = (3x^2 - 1)/2; / the fluence = B, in [-1/2, 1]) and its
+  in-scattered source toward the scene's camera, int L_s(w) f_hg(w . w_o; g) dw, w_o the unit
+  vector from the block's centre to the camera.
   The noise is the spread over ``--batches`` independent batches (different seeds).
 * popvol: ``popvol.solve`` per unit irradiance; on the voxel centres the walk's fluence phi
   (unscattered part included), its unscattered part direct = exp(-tau), phia (= phi x the
@@ -44,10 +46,22 @@ sigma_s x (transmittance to the camera) / (r^2 cos^3 of the off-axis angle) with
 (what each block adds to the sum of the pixels), with the single scattering (popvol's direct,
 the same on both sides) added: "lobes" is popvol's fields and lobes, "magnitude" popvol's
 scattered fluence times the MC's S / phi in each block (popvol's fluence, the true angular
-distribution), "1-lobe(MC)" one HG lobe about the MC's own first moment with the MC's
-own fluence (the angular model alone, with exact moments).
+distribution), "1-lobe(MC F)" one HG lobe about the MC's own first moment F/|F| (mean cosine
+|F|/phi) with the MC's own fluence (the angular model alone, with exact moments), "1-lobe about
+d (MC A)" one HG lobe about d with the MC's fluence and A = F . d / phi (popvol's walk model
+fed exact moments), "2-lobe about d (MC A, B)" two HG lobes about d matching the MC's
+fluence, A and B (what a walk that also tallied sum(W a^2) could render: a mixture of HG(a_v)
+lobes about d has Legendre coefficients P_l = sum(W a^l) / sum(W)); the closure
+(``two_point``): weights 1/2 at A -+ sqrt(B - A^2); where a point would leave [-1, 1] it sits
+on the bound and the other point and the weights keep the mean and variance; B - A^2 clamped
+to [0, 1 - A^2] (B < A^2 is no mixture of HG lobes about d: then one lobe). A lobe HG(a) about
+d scatters toward w_o as f_hg(d . w_o; g a), as in kernels/render.py. Each ratio is +- the
+spread over the batches. Before it, per band: the MC's A, B, the HG lobe's B = A^2 (of the
+band's A; <A^2> the fluence-weighted mean over the blocks), B<A^2% the (fluence-weighted) share
+of blocks with B < A^2, the three models' source toward the camera / the MC's (density-weighted,
+as above) and img% the band's share of the MC's multiple scattering in the image sum.
 
-The MC is cached in /tmp/fl/ (by angle, photons, block, batches and seed).
+The MC is cached in /tmp/fl/ (by a tally version tag, angle, photons, block, batches and seed).
 """
 from __future__ import annotations
 
@@ -71,7 +85,9 @@ CACHE = Path("/tmp/fl")
 BANDS = [(0.0, 0.5), (0.5, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, math.inf)]
 INV_4PI = 1.0 / (4.0 * math.pi)
 # tally rows
-PHI, FX, FY, FZ, SCAM, UNSC = range(6)
+PHI, FX, FY, FZ, SCAM, UNSC, P2D = range(7)
+NTAL = 7
+CACHE_TAG = "v2"                 # bump when the tallies change (v2: + P2D)
 
 
 # ----------------------------------------------------------------------------- Monte Carlo
@@ -129,7 +145,7 @@ def _to_box_exit(px, py, pz, ux, uy, uz, n, far):
 
 
 @nb.njit(inline="always")
-def _tally(tal, wo, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
+def _tally(tal, wo, d, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
     """Add w x (length of the flight p + t u, 0 <= t < L, in each block) to the block's tallies
     (Amanatides-Woo over blocks of b voxel units; coordinates q = index + 1/2, grid [0, n])."""
     ix = min(max(int(px / b), 0), nc[0] - 1)
@@ -151,6 +167,8 @@ def _tally(tal, wo, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
                 tal[FZ, ix, iy, iz] += wl * uz
                 mu = ux * wo[0, ix, iy, iz] + uy * wo[1, ix, iy, iz] + uz * wo[2, ix, iy, iz]
                 tal[SCAM, ix, iy, iz] += wl * _f_hg(mu, g)
+                c = ux * d[0] + uy * d[1] + uz * d[2]
+                tal[P2D, ix, iy, iz] += wl * (1.5 * c * c - 0.5)
             else:
                 tal[UNSC, ix, iy, iz] += wl
         t = tn
@@ -224,7 +242,7 @@ def _mc(rho, sig_vox, albedo, g, d, e1, e2, centre, half1, half2, b, wo, n_photo
             s = -math.log(1.0 - np.random.random()) / maj
             te = max(_to_box_exit(px, py, pz, ux, uy, uz, nq, 1e300), 0.0)
             L = min(s, te)
-            _tally(tal, wo, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g)
+            _tally(tal, wo, d, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g)
             if s >= te:
                 break
             px += s * ux
@@ -316,7 +334,7 @@ def geometry(scene):
 def run_mc(scene, n_photons: int, b: int, batches: int, seed: int, angle: int) -> dict:
     """The MC's per-batch block tallies, as fluence per unit irradiance (cached)."""
     CACHE.mkdir(parents=True, exist_ok=True)
-    path = CACHE / f"mc_a{angle:03d}_n{n_photons}_b{b}_k{batches}_s{seed}.npz"
+    path = CACHE / f"mc_{CACHE_TAG}_a{angle:03d}_n{n_photons}_b{b}_k{batches}_s{seed}.npz"
     if path.exists():
         z = np.load(path)
         return {k: z[k] for k in z.files}
@@ -355,7 +373,7 @@ def run_mc(scene, n_photons: int, b: int, batches: int, seed: int, angle: int) -
     t0 = time.perf_counter()
     real = tent = 0
     for k in range(batches):
-        tal = np.zeros((6,) + nc, np.float64)
+        tal = np.zeros((NTAL,) + nc, np.float64)
         r, t = _mc(rho, sig_vox, albedo, g, d, e1, e2, centre, half1, half2, float(b), wo, per,
                    seed * 1000 + k, tal)
         real += r
@@ -395,6 +413,53 @@ def camera_weight(scene, rho, sig_vox, vs, corner, b):
     cos3 = (zf / np.sqrt(r2)) ** 3
     W = np.where(inview & mask, rho * T / (r2 * cos3), 0.0)
     return blocks(W, b) * block_counts(rho.shape, b)
+
+
+def two_point(A, B):
+    """The two-point closure: weights and points (w1, a1, w2, a2) on [-1, 1] with mean A and
+    second moment B (the Legendre P1 and P2 of a mixture of HG lobes about d). The variance
+    B - A^2 is clamped to [0, 1 - A^2] (B < A^2 cannot come from HG lobes about d: one lobe
+    there). Weights 1/2 at A -+ sigma; where a point would leave [-1, 1], that point sits on
+    the bound (+1 or -1) and the other at A - var/(1 - A) (resp. A + var/(1 + A)), the weights
+    set by the mean (same mean and variance)."""
+    A = np.clip(np.asarray(A, np.float64), -1.0, 1.0)
+    var = np.clip(np.asarray(B, np.float64) - A * A, 0.0, 1.0 - A * A)
+    sig = np.sqrt(var)
+    a1, a2 = A - sig, A + sig
+    w1 = np.full(A.shape, 0.5)
+    hi = a2 > 1.0
+    lo = a1 < -1.0
+    x = A - var / np.maximum(1.0 - A, 1e-30)                   # partner of a point at +1
+    a1 = np.where(hi, x, a1)
+    a2 = np.where(hi, 1.0, a2)
+    w1 = np.where(hi, (1.0 - A) / np.maximum(1.0 - x, 1e-30), w1)
+    y = A + var / np.maximum(1.0 + A, 1e-30)                   # partner of a point at -1
+    a1 = np.where(lo, -1.0, a1)
+    a2 = np.where(lo, y, a2)
+    w1 = np.where(lo, (y - A) / np.maximum(y + 1.0, 1e-30), w1)
+    return w1, a1, 1.0 - w1, a2
+
+
+def model_sources(t, g, d, wo):
+    """From MC tallies t (NTAL, cx, cy, cz): the source toward the camera (int L f_hg(w . w_o))
+    of one HG lobe about the MC's own first moment F/|F|, of one HG lobe about d with A = F.d/phi,
+    and of the two-lobe closure about d with A and B = P2 tally / phi; each with the MC's
+    fluence. Lobes about d: a lobe HG(a) about d scatters toward w_o as f_hg(d . w_o; g a)
+    (the convention of kernels/render.py walk_lobes + lobe_toward, and of popvol_fields)."""
+    phi = t[PHI]
+    phim = np.maximum(phi, 1e-30)
+    F = t[FX:FZ + 1]
+    fn = np.linalg.norm(F, axis=0)
+    gm = 0.9999
+    mu_f = (F * wo).sum(0) / np.maximum(fn, 1e-30)
+    one_f = phi * f_hg(mu_f, np.clip(g * np.minimum(fn / phim, 1.0), -gm, gm))
+    A = np.clip(np.einsum("i,i...->...", d, F) / phim, -1.0, 1.0)
+    B = t[P2D] / phim
+    mu_d = np.einsum("i,i...->...", d, wo)
+    one_d = phi * f_hg(mu_d, np.clip(g * A, -gm, gm))
+    w1, a1, w2, a2 = two_point(A, B)
+    two_d = phi * (w1 * f_hg(mu_d, np.clip(g * a1, -gm, gm)) + w2 * f_hg(mu_d, np.clip(g * a2, -gm, gm)))
+    return one_f, one_d, two_d
 
 
 def popvol_fields(sol, scene):
@@ -442,7 +507,7 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
     d = np.asarray(scene.lights[0].direction, np.float64)
     d /= np.linalg.norm(d)
     mc = run_mc(scene, n_photons, b, batches, seed, angle)
-    tal = mc["tallies"].astype(np.float64)                      # (K, 6, cx, cy, cz)
+    tal = mc["tallies"].astype(np.float64)                      # (K, NTAL, cx, cy, cz)
     K = tal.shape[0]
     print(f"\n=== angle {angle:3d}: sun d = ({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f}), albedo {grey(m.albedo)}, "
           f"g {g}, sigma_t max {grey(m.scale) * rho.max():.3g}/unit, voxel {vs:.3f}, blocks of {b}^3")
@@ -453,6 +518,11 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
     W_cam = camera_weight(scene, rho, sig_vox, vs, corner, b)
     sel = rho_b > 0
     mc_mean = tal.mean(0)
+    cam_q = (np.asarray(scene.camera.origin, np.float64) - corner) / vs
+    cen = [blocks_centre(-(-s // b), b, s) for s in rho.shape]
+    X, Y, Z = np.meshgrid(*cen, indexing="ij")
+    wo_b = np.stack([cam_q[0] - X, cam_q[1] - Y, cam_q[2] - Z])
+    wo_b /= np.linalg.norm(wo_b, axis=0)
     for res in resolutions:
         scene = popvol.load_scene(str(scene_path(angle)), resolution=res)
         t0 = time.perf_counter()
@@ -473,7 +543,8 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
             rk = np.array([(w * tal[k, UNSC][bm]).sum() / pop for k in range(K)])
             print(f"  tau {lo:>4}-{hi:<4} n={bm.sum():6d}  x{rk.mean():.4f} +- {rk.std(ddof=1) / math.sqrt(K):.4f}")
         hdr = (f"{'tau band':>10} {'blocks':>6} {'pop/MC phi_s':>15} {'MC A_d':>7} {'pop A_d':>7} "
-               f"{'MC |F|/phi':>10} {'pop |F|/phi':>11} {'pop/MC S_cam':>14} {'diff%':>6}")
+               f"{'MC |F|/phi':>10} {'pop |F|/phi':>11} {'pop/MC S_cam':>14} {'diff%':>6} "
+               f"{'walkA':>6} {'J.d/pd':>6} {'|J|/pd':>6}")
         print(hdr)
         rows = [(f"{lo}-{hi}" if hi < math.inf else f">{lo}", sel & (tau >= lo) & (tau < hi)) for lo, hi in BANDS]
         rows.append(("all", sel))
@@ -501,30 +572,58 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
             print(f"{name:>10} {bm.sum():6d} {r:7.3f}+-{rk.std(ddof=1) / math.sqrt(K):.3f} {mc_ad:7.3f} "
                   f"{pop_ad:7.3f} {mc_fn:10.3f} {pop_fn:11.3f} {s:7.3f}+-{sk.std(ddof=1) / math.sqrt(K):.3f} "
                   f"{100 * dfrac:6.1f} {walk_a:6.3f} {j_d:6.3f} {j_n:6.3f}")
+        # the second moment about d (MC): how far the light is from one HG lobe about d
+        ones = [model_sources(tal[k], g, d, wo_b) for k in range(K)]
+        one_m = model_sources(mc_mean, g, d, wo_b)
+        phim = np.maximum(mc_mean[PHI], 1e-30)
+        A_blk = (d @ mc_mean[FX:FZ + 1].reshape(3, -1)).reshape(phim.shape) / phim
+        B_blk = mc_mean[P2D] / phim
+        print("second Legendre moment about d (MC; density x fluence weighted): B = P2 tally / phi, an HG "
+              "lobe about d has B = A^2; S_cam of one lobe about d (1d) / of the 2-lobe closure (2d) / MC")
+        print(f"{'tau band':>10} {'MC A':>6} {'MC B':>6} {'A^2':>6} {'<A^2>':>6} {'B<A^2%':>6} "
+              f"{'1F/MC S':>13} {'1d/MC S':>13} {'2d/MC S':>13} {'img%':>5}")
+        img_all = (W_cam[sel] * mc_mean[SCAM][sel]).sum()
+        for name, bm in rows:
+            if bm.sum() < 8:
+                continue
+            w = rho_b[bm]
+            wp = (w * mc_mean[PHI][bm]).sum()
+            Ab = (w * mc_mean[PHI][bm] * A_blk[bm]).sum() / wp
+            Bb = (w * mc_mean[P2D][bm]).sum() / wp
+            A2 = (w * mc_mean[PHI][bm] * A_blk[bm] ** 2).sum() / wp
+            below = 100 * (w * mc_mean[PHI][bm] * (B_blk[bm] < A_blk[bm] ** 2)).sum() / wp
+            cols = []
+            for j in range(3):
+                r = (w * one_m[j][bm]).sum() / (w * mc_mean[SCAM][bm]).sum()
+                rk = np.array([(w * ones[k][j][bm]).sum() / (w * tal[k, SCAM][bm]).sum() for k in range(K)])
+                cols.append(f"{r:7.3f}+-{rk.std(ddof=1) / math.sqrt(K):.3f}")
+            img = 100 * (W_cam[bm] * mc_mean[SCAM][bm]).sum() / img_all
+            print(f"{name:>10} {Ab:6.3f} {Bb:6.3f} {Ab * Ab:6.3f} {A2:6.3f} {below:6.1f} " + " ".join(cols)
+                  + f" {img:5.1f}")
         # image-level estimate
         Wb = W_cam[sel]
         single = (Wb * P["single"][sel]).sum()
-        ms_mc = (Wb * mc_mean[SCAM][sel]).sum()
         ms_pop = (Wb * P["S"][sel]).sum()
-        phim = np.maximum(mc_mean[PHI], 1e-30)
-        # popvol's fluence, the MC's angular factor S / phi, block by block
-        ms_mag = (Wb * (P["scat"] * mc_mean[SCAM] / phim)[sel]).sum()
-        Fm = mc_mean[FX:FZ + 1]
-        fn = np.linalg.norm(Fm, axis=0)
-        cam_q = (np.asarray(scene.camera.origin, np.float64) - corner) / vs
-        cen = [blocks_centre(-(-s // b), b, s) for s in rho.shape]
-        X, Y, Z = np.meshgrid(*cen, indexing="ij")
-        wo = np.stack([cam_q[0] - X, cam_q[1] - Y, cam_q[2] - Z])
-        wo /= np.linalg.norm(wo, axis=0)
-        mu = (Fm * wo).sum(0) / np.maximum(fn, 1e-30)
-        one = mc_mean[PHI] * f_hg(mu, np.clip(g * np.minimum(fn / phim, 1.0), -0.9999, 0.9999))
-        ms_one = (Wb * one[sel]).sum()
-        tot = single + ms_mc
-        print(f"image estimate (sum over the view; single scattering {100 * single / tot:.1f} % of the MC's): "
-              f"multiple scattering pop/MC: lobes x{ms_pop / ms_mc:.3f}, magnitude x{ms_mag / ms_mc:.3f}, "
-              f"1-lobe(MC) x{ms_one / ms_mc:.3f}; total (single + multiple): lobes x{(single + ms_pop) / tot:.3f}, "
-              f"magnitude x{(single + ms_mag) / tot:.3f}, 1-lobe(MC) x{(single + ms_one) / tot:.3f}")
 
+        def image(tk, models):
+            """Multiple-scattering sums over the view: MC, popvol lobes, magnitude, 1-lobe(F),
+            1-lobe about d, 2-lobe about d."""
+            ph = np.maximum(tk[PHI], 1e-30)
+            ms_mc = (Wb * tk[SCAM][sel]).sum()
+            ms_mag = (Wb * (P["scat"] * tk[SCAM] / ph)[sel]).sum()
+            return np.array([ms_mc, ms_pop, ms_mag] + [(Wb * x[sel]).sum() for x in models])
+
+        im = image(mc_mean, one_m)
+        imk = np.array([image(tal[k], ones[k]) for k in range(K)])
+        names = ["lobes", "magnitude", "1-lobe(MC F)", "1-lobe about d (MC A)", "2-lobe about d (MC A, B)"]
+        tot = single + im[0]
+        print(f"image estimate (sum over the view; single scattering {100 * single / tot:.1f} % of the MC's), "
+              f"pop/MC, multiple only | total (single + multiple):")
+        for j, nm in enumerate(names, start=1):
+            rm = imk[:, j] / imk[:, 0]
+            rt = (single + imk[:, j]) / (single + imk[:, 0])
+            print(f"  {nm:>26}: x{im[j] / im[0]:.3f}+-{rm.std(ddof=1) / math.sqrt(K):.3f} | "
+                  f"x{(single + im[j]) / tot:.3f}+-{rt.std(ddof=1) / math.sqrt(K):.3f}")
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
