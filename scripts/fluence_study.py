@@ -1,8 +1,8 @@
 """Is popvol's scattered *fluence* wrong, or only its *angular model*? An independent 3-D Monte
-Carlo of a sun lighting a medium's voxel grid, against popvol's solved fields (run from the
-repository root, with ../shared beside the checkout):
+Carlo of a sun lighting a medium's voxel grid, against popvol's solved fields (with ../shared
+beside the checkout):
 
-    python scripts/fluence_study.py [--resolution 64,128] [--angles 0,90,180] [--photons N]
+    python scripts/fluence_study.py [--resolution 64,128,256] [--angles 0,90,180] [--photons N]
                                     [--block 2] [--batches 4] [--seed 1]
 
 What it measures, per sun direction (scenes/accuracy/wdas_angle_<A>.toml: one sun each; the
@@ -57,15 +57,18 @@ on the bound and the other point and the weights keep the mean and variance; B -
 to [0, 1 - A^2] (B < A^2 is no mixture of HG lobes about d: then one lobe). A lobe HG(a) about
 d scatters toward w_o as f_hg(d . w_o; g a), as in kernels/render.py. Each ratio is +- the
 spread over the batches. Before it, per band: the MC's A, B, the HG lobe's B = A^2 (of the
-band's A; <A^2> the fluence-weighted mean over the blocks), B<A^2% the (fluence-weighted) share
+band's A; <A^2> the mean over the blocks, weighted as the band's sums), B<A^2% the share, so weighted,
 of blocks with B < A^2, the three models' source toward the camera / the MC's (density-weighted,
 as above) and img% the band's share of the MC's multiple scattering in the image sum.
 
-The MC is cached in /tmp/fl/ (by a tally version tag, angle, photons, block, batches and seed).
+The MC is cached in /tmp/fl/, keyed by a tally version tag, a hash of what it depends on (the
+density, the optics, the sun's direction, the camera's position), the photons, block, batches
+and seed.
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
 import math
 import os
 import time
@@ -331,10 +334,20 @@ def geometry(scene):
     return vs[0], corner
 
 
+def scene_key(scene) -> str:
+    """A short hash of what the MC's tallies depend on: the density, sigma_t's scale, the albedo,
+    g, the voxel grid, the sun's direction and the camera's position."""
+    m = scene.medium
+    h = hashlib.sha1(np.ascontiguousarray(m.density, np.float32).tobytes())
+    for v in (m.scale, m.albedo, m.g, m.voxel_size, m.origin, scene.lights[0].direction, scene.camera.origin):
+        h.update(np.asarray(v, np.float64).tobytes())
+    return h.hexdigest()[:12]
+
+
 def run_mc(scene, n_photons: int, b: int, batches: int, seed: int, angle: int) -> dict:
     """The MC's per-batch block tallies, as fluence per unit irradiance (cached)."""
     CACHE.mkdir(parents=True, exist_ok=True)
-    path = CACHE / f"mc_{CACHE_TAG}_a{angle:03d}_n{n_photons}_b{b}_k{batches}_s{seed}.npz"
+    path = CACHE / f"mc_{CACHE_TAG}_a{angle:03d}_{scene_key(scene)}_n{n_photons}_b{b}_k{batches}_s{seed}.npz"
     if path.exists():
         z = np.load(path)
         return {k: z[k] for k in z.files}
@@ -474,7 +487,7 @@ def popvol_fields(sol, scene):
     scat = walk_s + phid
     F = (phia - direct)[None] * d[:, None, None, None] + J
     # the lobes toward the camera (kernels/render.py walk_lobes and lobe_toward)
-    vs, corner = geometry(scene)
+    vs = geometry(scene)[0]
     cam = np.asarray(scene.camera.origin, np.float64)
     I, Jx, K = np.meshgrid(*(np.arange(s) for s in m.density.shape), indexing="ij")
     pos = np.stack([I, Jx, K]) * vs + np.asarray(m.origin, np.float64)[:, None, None, None]
@@ -624,6 +637,7 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
             rt = (single + imk[:, j]) / (single + imk[:, 0])
             print(f"  {nm:>26}: x{im[j] / im[0]:.3f}+-{rm.std(ddof=1) / math.sqrt(K):.3f} | "
                   f"x{(single + im[j]) / tot:.3f}+-{rt.std(ddof=1) / math.sqrt(K):.3f}")
+
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

@@ -88,6 +88,37 @@ def test_gathered_source_equals_numpy_twin(albedo):
     np.testing.assert_allclose(got, expect, rtol=2e-4, atol=1e-6 * expect.max())
 
 
+def test_one_colour_sweep_is_the_rgb_sweep_of_one_channel():
+    """A change detector, named as one: kernels.gather._sweep_one_colour is _sweep's arithmetic
+    for one channel in the same order, so the two give the same bits, direction by direction
+    (axis-aligned and oblique, so that upstream points fall outside the grid), with per-voxel
+    albedo and g. Its light itself is checked against the twin (test above)."""
+    from popvol.kernels import gather as KG
+    scene = small_scene()
+    med = scene.medium
+    rng = np.random.default_rng(4)
+    med.albedo = (0.8 + 0.2 * rng.random(med.shape)).astype(np.float32)
+    med.g = (0.3 + 0.5 * rng.random(med.shape)).astype(np.float32)
+    sol = popvol.solve(scene)
+    medium, lights = renderer.render_inputs(scene, sol)[:2]
+    seen = voxels_seen(med.density)
+    _, _, medium, grids, across_z, lobes, colour = renderer.gather_state(medium, lights, renderer.field_bundles(sol),
+                                                                         seen, 1)
+    assert colour is not None                                   # one light in a grey medium
+    to_eye = KG.eye_directions(medium, np.asarray(scene.camera.origin, np.float64), grids[4])
+    grids, across_z = grids + (to_eye,), across_z + (renderer.z_first(to_eye),)
+    dirs = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0], [0.6, -0.64, 0.48], [-0.3, 0.2, -0.93],
+                     [0.57, 0.57, -0.59]])
+    for w in dirs / np.linalg.norm(dirs, axis=1)[:, None]:
+        outs = [np.zeros(grids[0].shape + (1,), np.float32) for _ in range(2)]
+        norms = [np.zeros(grids[0].shape, np.float32) for _ in range(2)]
+        KG._sweep(medium, lobes, grids, across_z, w, 0.7, outs[0], norms[0])
+        KG._sweep_one_colour(medium, lobes, grids, across_z, w, 0.7, outs[1], norms[1])
+        assert outs[0].max() > 0
+        np.testing.assert_array_equal(outs[1], outs[0])
+        np.testing.assert_array_equal(norms[1], norms[0])
+
+
 def test_gather_changes_only_the_rendering():
     """gather is a render-only knob: the solution is reused, and the image changes (gather = 0:
     the fields' lobes light every sample)."""

@@ -311,6 +311,18 @@ def test_combined_source_kernel_equals_numpy_twin():
     np.testing.assert_allclose(source, twin, rtol=2e-5, atol=1e-6 * twin.max())
 
 
+def test_a_lights_one_lobe_is_its_two_lobes_without_unscattered_light():
+    """kernels.render.rest_lobe (a light without an unscattered part, lit from one lobe) gives
+    walk_lobes' value with phi_dir = 0, on random fields, directions and g (a zero's sign aside)."""
+    from popvol.kernels.render import rest_lobe, walk_lobes
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        p = float(rng.choice([0.0, -0.0, rng.random() * 10.0**rng.integers(-30, 3)]))
+        pa = float(p * rng.uniform(-1.2, 1.2))
+        mu, g = float(rng.uniform(-1, 1)), float(rng.uniform(-0.95, 0.95))
+        assert rest_lobe(p, pa, mu, g) == walk_lobes(p, pa, 0.0, mu, g)
+
+
 def test_combined_source_changes_the_image_little_with_three_suns():
     """The combined source interpolates the sum of the lobes instead of the fields, and takes
     the phase at voxel centres: on a cloud under three suns with the diffusion stage the image

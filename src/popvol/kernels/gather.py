@@ -337,7 +337,7 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm):
     weight transported with sigma_t's first channel, the same arithmetic in the same order
     without the loop over channels (so the same bits), the upstream point's three bilinear
     values on one stencil."""
-    s0, a0 = medium[1][0], medium[3][0]
+    scale_0, albedo_0 = medium[1][0], medium[3][0]      # sigma_t per density, albedo: channel 0
     n_lobes = lobes.shape[1]
     w0, w1, w2 = w[0], w[1], w[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
@@ -362,8 +362,8 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm):
                             j += lk * f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2,
                                            lobes[row, k, 3])
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
-                sig = s0 * density[rx, ry, rz]
-                qv = sig * alb * a0 * j
+                sig = scale_0 * density[rx, ry, rz]
+                qv = sig * alb * albedo_0 * j
                 if step == 0:
                     l_up, q_up, s_up = 0.0, qv, sig
                 elif inside_p and sv[0][q]:

@@ -294,7 +294,7 @@ def walk_lobes(p, pa, pdir, mu, g):
 def rest_lobe(p, pa, mu, g):
     """:func:`walk_lobes` of a light without an unscattered part (phi_dir = 0 everywhere: an
     environment's lights): the one lobe (phi, g A), A = phia / phi, by the same arithmetic, so
-    the same bits."""
+    the same value (a zero may come out as -0.0 where walk_lobes gives +0.0)."""
     p = max(p, 0.0)
     return p * f_hg(mu, _clamp_g(g * (pa / max(p, TINY))))
 

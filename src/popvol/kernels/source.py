@@ -103,7 +103,7 @@ def walk_terms(phi, phia, direct, sun, view, g, g_const, unscattered, terms):
     """terms[k] = render.walk_lobes of the run's fields (float32 (n,)) toward the camera
     (``view`` from :func:`view_directions`; ``sun`` the light's direction of travel), per unit
     power; g: the run's anisotropy (n,), or its one value with ``g_const``. A light without an
-    ``unscattered`` part has its one lobe (render.rest_lobe: the same bits), ``direct`` not read."""
+    ``unscattered`` part has its one lobe (render.rest_lobe: the same values), ``direct`` not read."""
     s0, s1, s2 = sun
     gc = g[0]
     n = phi.shape[0]
