@@ -239,7 +239,7 @@ def main():
             "without the gather (`gather = 0`, the lobes light the camera) at 64 and 128 cells, the "
             "Jacobi wavefront (`solver = "
             "\"jacobi\"`) at 128 cells and the binned wavefront (`solver = \"binned\"`, docs/METHOD.md "
-            "\"The merge itself\") at 64, and the six-ordinate wavefront (`solver = \"ordinates\"`, "
+            "\"The merge itself\") at 64, and the six-ordinate walk (`solver = \"ordinates\"`, "
             "docs/METHOD.md \"Six ordinates\") at 64 and 128 (point lights always sweep, with the "
             "diffusion stage but in the walk-alone rows); the other `[experimental]` variants are measured in "
             "[ACCURACY_NOTES.md](ACCURACY_NOTES.md) and docs/METHOD.md.", "",

@@ -6,7 +6,7 @@ checkout):
 Variants (KEY: what differs from the default method): "default" (sweeps + diffusion), "binned"
 (the binned wavefront + diffusion: experimental.solver = "binned", kernels/binned.py, each
 cell's light kept in fixed anisotropy bins, so the walk is linear in the light), "walk" and
-"binned-walk" (the same walks alone), "ordinates" (the six-ordinate wavefront,
+"binned-walk" (the same walks alone), "ordinates" (the six-ordinate walk,
 kernels/ordinates.py, which walks all of a sun's light; point lights keep the sweeps and the
 diffusion stage). Default: all five. ``--gather N``: method.gather of every variant (default:
 the method's, 64 directions; 0: the fields' lobes light the camera, kernels/gather.py).

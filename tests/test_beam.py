@@ -58,7 +58,7 @@ def pop():
 
 @pytest.fixture(scope="module")
 def ordinates():
-    """The six-ordinate wavefront, walk alone (experimental.solver = "ordinates")."""
+    """The six-ordinate walk, alone (experimental.solver = "ordinates")."""
     return {n: pop_beam(n, solver="ordinates") for n in (16, 32)}
 
 

@@ -1,6 +1,6 @@
-"""The six-ordinate wavefront (experimental.solver = "ordinates", kernels/ordinates.py): the side
-slice's mean cosine against brute-force quadrature, the kernel against its NumPy twin, energy
-balance and Beer-Lambert, and the scene-level rules (it walks all the light; its scattered
+"""The six-ordinate walk (experimental.solver = "ordinates", kernels/ordinates.py): the side
+slice's mean cosine against brute-force quadrature, the sweep kernel against its NumPy twin, its
+fixed point against the Jacobi wavefront's (tests/twins.py), energy balance and Beer-Lambert, and the scene-level rules (it walks all the light; its scattered
 light is rendered as one lobe about its own first moment). Its transport against a 3-D Monte
 Carlo walk is in tests/test_beam.py."""
 import numpy as np
@@ -47,28 +47,61 @@ def test_ordinate_table_side_wedge_column():
 
 # -- the kernel against its NumPy twin ---------------------------------------------------------
 
-def test_ordinates_kernel_equals_numpy_twin(rng):
+@pytest.mark.parametrize("order", [(True, True, True), (False, True, False), (True, False, False),
+                                   (False, False, True)])
+def test_ordinates_kernel_equals_numpy_twin(rng, order):
+    """One sweep in each order, some packets below the threshold staying pending."""
     shape = (6, 5, 4)
     W = (rng.random((6,) + shape) * (rng.random((6,) + shape) > 0.3)).astype(np.float32)
     Wa = (W * rng.uniform(-1, 1, W.shape)).astype(np.float32)
     Th = rng.uniform(0.7, 1.0, shape).astype(np.float32)
     Dh = rng.uniform(0.5, 1.0, shape).astype(np.float32)
+    W_r, Wa_r = W.astype(np.float64), Wa.astype(np.float64)
     phi, F = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32)
-    W2, Wa2 = np.zeros_like(W), np.zeros_like(W)
     tally = np.zeros(4)
-    KO.ordinates_step(W, Wa, Th, Dh, ordinate_table(), np.float32(3.0), phi, F, W2, Wa2, tally)
+    w_min = 0.2
+    sent = KO.ordinates_sweep(W, Wa, Th, Dh, ordinate_table(), np.float32(3.0), phi, F, np.float32(w_min), *order,
+                              tally)
 
     phi_r, F_r, tally_r = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
-    W_r, Wa_r = ref.ordinates_step(W, Wa, Th, Dh, 3.0, phi_r, F_r, tally_r)
-    np.testing.assert_allclose(W2, W_r, rtol=2e-5, atol=1e-6)
-    np.testing.assert_allclose(Wa2, Wa_r, rtol=2e-4, atol=2e-5)
-    np.testing.assert_allclose(phi, phi_r, rtol=1e-6)
-    np.testing.assert_allclose(F, F_r, rtol=1e-6, atol=1e-6)
+    before = W_r.sum()
+    sent_r = ref.ordinates_sweep(W_r, Wa_r, Th, Dh, 3.0, phi_r, F_r, w_min, *order, tally_r)
+    assert sent == sent_r and 0 < sent < W.size
+    np.testing.assert_allclose(W, W_r, rtol=2e-5, atol=1e-6)
+    np.testing.assert_allclose(Wa, Wa_r, rtol=2e-4, atol=2e-5)
+    np.testing.assert_allclose(phi, phi_r, rtol=1e-5)
+    np.testing.assert_allclose(F, F_r, rtol=1e-5, atol=1e-6)
     np.testing.assert_allclose(tally, tally_r, rtol=2e-5, atol=1e-6)
-    # the step keeps energy: what went in = what arrived + escaped + absorbed
-    assert W.sum(dtype=np.float64) == pytest.approx(W_r.sum() + tally_r.sum(), rel=1e-9)
-    # every arriving packet's anisotropy stays in [-1, 1]
-    assert np.all(np.abs(Wa2) <= W2 * (1 + 1e-5) + 1e-7)
+    # the sweep keeps energy: what was pending = what is pending + escaped + absorbed
+    assert before == pytest.approx(W_r.sum() + tally_r.sum(), rel=1e-9)
+    # every pending packet's anisotropy stays in [-1, 1]
+    assert np.all(np.abs(Wa) <= W * (1 + 1e-5) + 1e-7)
+
+
+def test_sweeps_reach_the_wavefronts_fixed_point(rng):
+    """The sweeps send the same packets as the Jacobi wavefront (tests/twins.py ordinates_step,
+    every packet one cell per iteration), only in another order; the merges of packets that meet
+    in a cell make the walk depend on that order a little (docs/METHOD.md, "The schedule"). On a
+    heterogeneous cube walked to 1e-6 the sweeps take fewer iterations, and the two fluences
+    agree within 0.3 % in every cell and 0.05 % over all, the first moments within 0.2 % of the
+    largest fluence (measured: 0.034 %, 0.002 %, 0.008 %; 38 sweeps, 59 iterations)."""
+    shape, h = (8, 7, 6), 0.05
+    density = (rng.random(shape) * 40).astype(np.float32)
+    Th, Dh = medium_factors(density, 0.95 * density, np.full(shape, 0.7, np.float32), h, "poisson")
+    inj = np.full(shape[1:], h * h, np.float32)
+    r = walk_box(Th, Dh, inj, 1.0, h, solver="ordinates", tolerance=1e-6)
+    W = np.zeros((6,) + shape)
+    W[0, 0] = inj * Th[0]
+    Wa = W * Dh[0]
+    phi, F, tally = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
+    iterations = 0
+    while W.sum() > 1e-7 * inj.sum():
+        W, Wa = ref.ordinates_step(W, Wa, Th, Dh, 1.0 / h ** 2, phi, F, tally)
+        iterations += 1
+    assert r.converged and r.iterations < iterations
+    assert np.abs(r.phi / phi - 1).max() < 3e-3
+    assert r.phi.sum() / phi.sum() == pytest.approx(1.0, abs=5e-4)
+    assert np.abs(r.flux - F).max() < 2e-3 * phi.max()
 
 
 # -- energy and Beer-Lambert -------------------------------------------------------------------

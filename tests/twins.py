@@ -119,7 +119,9 @@ def binned_step(W, ab, shares, Th, Dh, periodic, inv_area, phi, phia, tally, han
 
 
 def ordinates_step(W, Wa, Th, Dh, inv_area, phi, F, tally):
-    """One iteration of the six-ordinate wavefront (twin of kernels.ordinates.ordinates_step).
+    """One iteration of the six-ordinate Jacobi wavefront, every pending packet sent one cell:
+    the fixed point that the kernel's sweeps (kernels.ordinates.ordinates_sweep) reach but for
+    the order in which packets merge (tests/test_ordinates.py).
     W, Wa (6, n_d, n_u, n_v): power and power times anisotropy pending in ordinate o = 0..5
     (+d, -d, +u, -u, +v, -v) of each cell; a packet's lobe HG_a about e_o splits by the cone
     partition about e_o: front on in ordinate o (a' = m_front), back into ordinate o ^ 1
@@ -151,6 +153,53 @@ def ordinates_step(W, Wa, Th, Dh, inv_area, phi, F, tally):
             W_new[q] += e_in
             Wa_new[q] += ea_in
     return W_new, Wa_new
+
+
+def ordinates_sweep(W, Wa, Th, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+    """One Gauss-Seidel sweep of the six-ordinate walk (twin of kernels.ordinates.ordinates_sweep),
+    cell by cell, in place, in float64. Cells in order of k, i, j (each increasing if its
+    ``forward_*``); at each cell the ordinates o = 0..5 (+d, -d, +u, -u, +v, -v) in turn: a packet
+    above ``w_min`` is taken, visits (phi, F), and splits as ordinates_step's (exact HG shares),
+    each part moved one cell into its ordinate's pending packet there (Th, Dh of sender and
+    receiver), what leaves the grid tallied. Returns the number of packets sent."""
+    n0, n1, n2 = Th.shape
+    Th, Dh = Th.astype(np.float64), Dh.astype(np.float64)
+    sent_packets = 0
+    for k in (range(n0) if forward_d else range(n0 - 1, -1, -1)):
+        for i in (range(n1) if forward_u else range(n1 - 1, -1, -1)):
+            for j in (range(n2) if forward_v else range(n2 - 1, -1, -1)):
+                for o in range(6):
+                    w = float(W[o, k, i, j])
+                    if w <= w_min:
+                        continue
+                    wa = float(Wa[o, k, i, j])
+                    W[o, k, i, j] = Wa[o, k, i, j] = 0.0
+                    sent_packets += 1
+                    phi[k, i, j] += w * inv_area
+                    F[o // 2, k, i, j] += (1.0 - 2.0 * (o % 2)) * wa * inv_area
+                    a = np.clip(wa / w, -1.0, 1.0)
+                    fr, sd, bk = (float(np.ravel(x)[0]) for x in hg.split_fractions(np.array([a])))
+                    mf, _, mb = (float(np.ravel(x)[0]) for x in hg.conditional_mean_cosines(np.array([a])))
+                    mj = float(np.ravel(hg.side_wedge_mean_cosine(np.array([a])))[0])
+                    sent = w * Th[k, i, j]
+                    tally[ABSORBED] += w - sent
+                    for n in range(6):
+                        e, q, m = ((sent * fr, o, mf) if n == o else (sent * bk, n, -mb) if n == o ^ 1
+                                   else (sent * sd, n, mj))
+                        dst = [k, i, j]
+                        dst[n // 2] += 1 - 2 * (n % 2)
+                        if dst[0] < 0:
+                            tally[REFLECTED] += e
+                        elif dst[0] >= n0:
+                            tally[TRANSMITTED] += e
+                        elif not (0 <= dst[1] < n1 and 0 <= dst[2] < n2):
+                            tally[SIDE_ESCAPED] += e
+                        else:
+                            th2 = Th[tuple(dst)]
+                            tally[ABSORBED] += e * (1.0 - th2)
+                            W[(q,) + tuple(dst)] += e * th2
+                            Wa[(q,) + tuple(dst)] += e * th2 * m * Dh[k, i, j] * Dh[tuple(dst)]
+    return sent_packets
 
 
 def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, phia, tally,

@@ -8,7 +8,7 @@ a. Gauss-Seidel sweeps along the principal ordinate (kernels/propagation.py for 
 domain, kernels/spherical.py for a point light's) or a Jacobi wavefront repeat this until the
 power still in flight is below the tolerance; the experimental binned wavefront
 (kernels/binned.py) keeps each cell's light in fixed anisotropy bins instead of one merged lobe,
-and the experimental six-ordinate wavefront (kernels/ordinates.py) one lobe per lattice
+and the experimental six-ordinate walk (kernels/ordinates.py, by sweeps) one lobe per lattice
 direction, so that light sent sideways keeps going sideways. With the diffusion stage, packets
 whose lobe has spread leave the walk (docs/METHOD.md, "Hand-over").
 """
@@ -145,7 +145,7 @@ def replace_direct(result: WalkResult, direct: np.ndarray) -> None:
 
 
 def default_max_iterations(shape, solver: str) -> int:
-    if solver in ("jacobi", "binned", "ordinates"):
+    if solver in ("jacobi", "binned"):
         return 40 * int(sum(shape))
     return 400
 
@@ -233,35 +233,33 @@ def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tall
 
 
 def walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
-                    ) -> tuple[int, float, float]:
-    """The six-ordinate wavefront (kernels/ordinates.py) of :func:`walk_box`: the injected light
-    enters ordinate +d; returns (iterations, power in flight, power the injection's half step
-    absorbed). Accumulates into phi, flux (float32 (3,) + shape, the first moment in the
-    domain's frame) and tally."""
+                    ) -> tuple[int, float, float, int]:
+    """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box`, by thresholded
+    Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
+    in the mean pending power): the injected light enters ordinate +d; the sweeps alternate +d
+    / -d every sweep, the order along u every second and along v every fourth. Returns
+    (sweeps, power in flight, power the injection's half step absorbed, packets sent).
+    Accumulates into phi, flux (float32 (3,) + shape, the first moment in the domain's frame)
+    and tally."""
     shape = Th.shape
-    check_memory(4 * 6 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates')",
-                 f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment, twice)")
+    check_memory(2 * 6 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates')",
+                 f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment)")
     table = ordinate_table()
     W = np.zeros((6,) + shape, np.float32)
     Wa = np.zeros_like(W)
-    W_next, Wa_next = np.zeros_like(W), np.zeros_like(W)
     # the injected light crosses half a cell to the first centres (a0 decayed by Dh[0])
     W[0, 0] = injection * Th[0]
     Wa[0, 0] = W[0, 0] * np.float32(a0) * Dh[0]
     absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
     injected = float(np.sum(injection, dtype=np.float64))
-    in_flight = float(np.sum(W, dtype=np.float64))
-    it = 0
-    while in_flight > target and it < cap:
-        W_next.fill(0.0)
-        Wa_next.fill(0.0)
-        KO.ordinates_step(W, Wa, Th, Dh, table, inv_area, phi, flux, W_next, Wa_next, tally)
-        W, W_next, Wa, Wa_next = W_next, W, Wa_next, Wa
-        in_flight = float(np.sum(W, dtype=np.float64))
-        it += 1
-        if progress is not None and it % 16 == 0:
-            progress(it, in_flight / max(injected, 1e-300))
-    return it, in_flight, absorbed
+
+    def one_sweep(it, w_min):
+        sent = KO.ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
+                                  it % 4 < 2, it % 8 < 4, tally)
+        return K.total_energy(W.reshape((6 * shape[0],) + shape[1:])), sent
+    in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
+                                                6 * int(np.prod(shape)), injected, progress)
+    return it, in_flight, absorbed, sent
 
 
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
@@ -279,8 +277,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         h: cell size; fluence accumulates W / h^2 per visit.
         rule: "moment" or "paper"; solver: "sweep", "jacobi", "binned" (the Jacobi wavefront
             with each cell's light in fixed anisotropy bins, linear in the light:
-            :func:`walk_binned`) or "ordinates" (the Jacobi wavefront with one lobe per
-            lattice direction: :func:`walk_ordinates`; rule "moment" only, no hand-over; the
+            :func:`walk_binned`) or "ordinates" (sweeps with one lobe per lattice direction:
+            :func:`walk_ordinates`; rule "moment" only, no hand-over; the
             result's ``flux`` holds the fluence's first moment vector).
         tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
             (0 = automatic). With ``handover`` and the sweep or binned solver, what is then
@@ -330,8 +328,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         if handover is not None or periodic or not moment:
             raise ValueError("the six-ordinate walk has no hand-over, periodic faces or 'paper' rule")
         flux = np.zeros((3,) + shape, np.float32)
-        it, in_flight, budget.absorbed = walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally,
-                                                        target, cap, progress)
+        it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally,
+                                                              target, cap, progress)
         phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,

@@ -1,4 +1,4 @@
-"""Numba kernel of the six-ordinate wavefront (docs/METHOD.md, "Six ordinates";
+"""Numba kernel of the six-ordinate walk (docs/METHOD.md, "Six ordinates";
 experimental.solver = "ordinates").
 
 The sweeps, the Jacobi and the binned wavefronts hold one lobe per cell about the domain's axis
@@ -19,17 +19,21 @@ wedge of HG_a about e_o (``table`` column MJ). The side part's drift along e_o (
 carried. Each part decays by Dh[s] Dh[c] and is attenuated by Th[s] Th[c] (Eq. 11). So light
 that leaves sideways keeps going sideways.
 
+The packets are sent by thresholded Gauss-Seidel sweeps (:func:`ordinates_sweep`), cell by
+cell in place, as the one-lobe walk's sweeps are (kernels/propagation.py): a part sent to a
+cell later in the sweep's order is sent on in the same sweep, so light crosses the domain along
+every ordinate that the sweep's order follows in one sweep.
+
 Fields (per unit area, accumulated at every visit, Eq. 14): phi float32 (n_d, n_u, n_v) the
 fluence, F float32 (3, n_d, n_u, n_v) its first moment (the sum over ordinates of W a e_o) in
 the domain's frame. Tallies (float64 (4,)): reflected, transmitted, side escaped, absorbed.
 
-NumPy twin: tests/twins.py (ordinates_step).
+NumPy twin: tests/twins.py (ordinates_sweep).
 """
 import numba as nb
 import numpy as np
 
 from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
-from .reduction import add_parts
 
 #: columns of the ordinates' table (walk.ordinate_table): front share, side share (each),
 #: back share, the three parts' conditional mean cosines about e_o, and the side wedge's mean
@@ -37,69 +41,80 @@ from .reduction import add_parts
 PF, PS, PB, MF, MS, MB, MJ = range(7)
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def ordinates_step(W, Wa, Th, Dh, table, inv_area, phi, F, W_out, Wa_out, tally):
-    """Send every pending packet one cell (module docstring) into ``W_out``, ``Wa_out`` (added
-    to; the caller zeroes them), accumulating (phi, F) and the tallies. Slices k = r, r + 3,
-    ... are sent in parallel for r = 0, 1, 2, so two threads never write the same slice.
-    Returns the power now in flight."""
+@nb.njit(fastmath=True, cache=True, nogil=True)
+def ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+    """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
+    each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
+    a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and split to
+    its six neighbours' pending packets, in place (what leaves the domain is tallied, as what
+    the half steps absorb). Packets at or below ``w_min`` stay pending. One thread. Returns the
+    number of packets sent."""
     n0, n1, n2 = Th.shape
     nt = table.shape[0]
-    part = np.zeros((4, n0))            # the tallies per sending slice (kernels/reduction.py)
-    for r in range(3):
-        for kk in nb.prange((n0 - r + 2) // 3):
-            k = r + 3 * np.int64(kk)
-            for i in range(n1):
-                for j in range(n2):
-                    th = Th[k, i, j]
-                    dh = Dh[k, i, j]
-                    for o in range(6):
-                        w = W[o, k, i, j]
-                        if w <= 0.0:
+    refl = trans = side_out = absorbed = 0.0
+    sent_packets = 0
+    for kk in range(n0):
+        k = kk if forward_d else n0 - 1 - kk
+        for ii in range(n1):
+            i = ii if forward_u else n1 - 1 - ii
+            for jj in range(n2):
+                j = jj if forward_v else n2 - 1 - jj
+                th = Th[k, i, j]
+                dh = Dh[k, i, j]
+                for o in range(6):
+                    w = W[o, k, i, j]
+                    if w <= w_min:
+                        continue
+                    wa = Wa[o, k, i, j]
+                    W[o, k, i, j] = 0.0
+                    Wa[o, k, i, j] = 0.0
+                    sent_packets += 1
+                    sign = 1.0 - 2.0 * (o % 2)
+                    phi[k, i, j] += w * inv_area
+                    F[o // 2, k, i, j] += sign * wa * inv_area
+                    x = (wa / w + 1.0) * 0.5 * (nt - 1)
+                    x = min(max(x, 0.0), nt - 1.0)
+                    t = min(int(x), nt - 2)
+                    lam = x - t
+                    pf = table[t, PF] + lam * (table[t + 1, PF] - table[t, PF])
+                    ps = table[t, PS] + lam * (table[t + 1, PS] - table[t, PS])
+                    pb = max(1.0 - pf - 4.0 * ps, 0.0)
+                    mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
+                    mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
+                    mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
+                    sent = w * th                    # what the sender's half step leaves
+                    absorbed += w - sent
+                    for n in range(6):
+                        if n == o:
+                            e, q, a = sent * pf, o, mf
+                        elif n == (o ^ 1):
+                            e, q, a = sent * pb, n, -mb
+                        else:
+                            e, q, a = sent * ps, n, mj
+                        if e <= 0.0:
                             continue
-                        wa = Wa[o, k, i, j]
-                        sign = 1.0 - 2.0 * (o % 2)
-                        phi[k, i, j] += w * inv_area
-                        F[o // 2, k, i, j] += sign * wa * inv_area
-                        x = (wa / w + 1.0) * 0.5 * (nt - 1)
-                        x = min(max(x, 0.0), nt - 1.0)
-                        t = min(int(x), nt - 2)
-                        lam = x - t
-                        pf = table[t, PF] + lam * (table[t + 1, PF] - table[t, PF])
-                        ps = table[t, PS] + lam * (table[t + 1, PS] - table[t, PS])
-                        pb = max(1.0 - pf - 4.0 * ps, 0.0)
-                        mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
-                        mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
-                        mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
-                        sent = w * th                    # what the sender's half step leaves
-                        part[ABSORBED, k] += w - sent
-                        for n in range(6):
-                            if n == o:
-                                e, q, a = sent * pf, o, mf
-                            elif n == (o ^ 1):
-                                e, q, a = sent * pb, n, -mb
-                            else:
-                                e, q, a = sent * ps, n, mj
-                            if e <= 0.0:
-                                continue
-                            step = 1 - 2 * (n % 2)
-                            k2, i2, j2 = k, i, j
-                            if n < 2:
-                                k2 += step
-                            elif n < 4:
-                                i2 += step
-                            else:
-                                j2 += step
-                            if k2 < 0:
-                                part[REFLECTED, k] += e
-                            elif k2 >= n0:
-                                part[TRANSMITTED, k] += e
-                            elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
-                                part[SIDE_ESCAPED, k] += e
-                            else:
-                                th2 = Th[k2, i2, j2]
-                                part[ABSORBED, k] += e * (1.0 - th2)
-                                e *= th2
-                                W_out[q, k2, i2, j2] += e
-                                Wa_out[q, k2, i2, j2] += e * a * dh * Dh[k2, i2, j2]
-    add_parts(part, tally)
+                        step = 1 - 2 * (n % 2)
+                        k2, i2, j2 = k, i, j
+                        if n < 2:
+                            k2 += step
+                        elif n < 4:
+                            i2 += step
+                        else:
+                            j2 += step
+                        if k2 < 0:
+                            refl += e
+                        elif k2 >= n0:
+                            trans += e
+                        elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
+                            side_out += e
+                        else:
+                            th2 = Th[k2, i2, j2]
+                            absorbed += e * (1.0 - th2)
+                            e *= th2
+                            W[q, k2, i2, j2] += e
+                            Wa[q, k2, i2, j2] += e * a * dh * Dh[k2, i2, j2]
+    tally[REFLECTED] += refl
+    tally[TRANSMITTED] += trans
+    tally[SIDE_ESCAPED] += side_out
+    tally[ABSORBED] += absorbed
+    return sent_packets
