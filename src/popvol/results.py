@@ -79,7 +79,8 @@ class WalkResult:
     seconds_diffusion: float = 0.0
     flux: np.ndarray | None = None
     cells_sent: int = 0        # the sweeps' cells that sent a packet, summed over the sweeps (the work
-                               # they did; a Jacobi wavefront does not count them)
+                               # they did; the six-ordinate sweeps count packets, up to six a cell;
+                               # a Jacobi wavefront does not count them)
 
 
 @dataclass
