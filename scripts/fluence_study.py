@@ -3,7 +3,7 @@ Carlo of a sun lighting a medium's voxel grid, against popvol's solved fields (w
 beside the checkout):
 
     python scripts/fluence_study.py [--resolution 64,128,256] [--angles 0,90,180] [--photons N]
-                                    [--block 2] [--batches 4] [--seed 1]
+                                    [--block 2] [--batches 4] [--seed 1] [--solver ordinates]
 
 What it measures, per sun direction (scenes/accuracy/wdas_angle_<A>.toml: one sun each; the
 fields do not depend on the camera, so the three angles are three sun directions) and per
@@ -510,8 +510,8 @@ def popvol_fields(sol, scene):
 
 
 # ----------------------------------------------------------------------------- the study
-def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: int) -> None:
-    scene = popvol.load_scene(str(scene_path(angle)), resolution=resolutions[0])
+def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: int, solver: str = "sweep") -> None:
+    scene = popvol.load_scene(str(scene_path(angle)), resolution=resolutions[0], solver=solver)
     m = scene.medium
     rho = np.ascontiguousarray(m.density, np.float32)
     vs, corner = geometry(scene)
@@ -537,7 +537,7 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
     wo_b = np.stack([cam_q[0] - X, cam_q[1] - Y, cam_q[2] - Z])
     wo_b /= np.linalg.norm(wo_b, axis=0)
     for res in resolutions:
-        scene = popvol.load_scene(str(scene_path(angle)), resolution=res)
+        scene = popvol.load_scene(str(scene_path(angle)), resolution=res, solver=solver)
         t0 = time.perf_counter()
         sol = popvol.solve(scene)
         ts = time.perf_counter() - t0
@@ -647,11 +647,12 @@ def main():
     ap.add_argument("--block", type=int, default=2, help="tally blocks of b^3 voxels")
     ap.add_argument("--batches", type=int, default=4, help="independent batches, for the MC's noise")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--solver", default="sweep", help="popvol's experimental.solver (e.g. ordinates)")
     a = ap.parse_args()
     os.chdir(ROOT)
     res = [int(x) for x in a.resolution.split(",")]
     for angle in (int(x) for x in a.angles.split(",")):
-        study(angle, res, a.photons, a.block, a.batches, a.seed)
+        study(angle, res, a.photons, a.block, a.batches, a.seed, a.solver)
 
 
 if __name__ == "__main__":
