@@ -61,7 +61,7 @@ band's A; <A^2> the mean over the blocks, weighted as the band's sums), B<A^2% t
 of blocks with B < A^2, the three models' source toward the camera / the MC's (density-weighted,
 as above) and img% the band's share of the MC's multiple scattering in the image sum.
 
-The MC is cached in /tmp/fl/, keyed by a tally version tag, a hash of what it depends on (the
+The MC is cached in the system's temporary folder (popvol_fluence_study/), keyed by a tally version tag, a hash of what it depends on (the
 density, the optics, the sun's direction, the camera's position), the photons, block, batches
 and seed.
 """
@@ -71,10 +71,10 @@ import argparse
 import hashlib
 import math
 import os
+import sys
+import tempfile
 import time
 from pathlib import Path
-
-import sys
 
 import numba as nb
 import numpy as np
@@ -84,7 +84,7 @@ import popvol
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from montecarlo import _scatter            # noqa: E402  (HG sampling, the tests' oracle's)
-CACHE = Path("/tmp/fl")
+CACHE = Path(tempfile.gettempdir()) / "popvol_fluence_study"
 BANDS = [(0.0, 0.5), (0.5, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, math.inf)]
 INV_4PI = 1.0 / (4.0 * math.pi)
 # tally rows

@@ -31,7 +31,6 @@ the domain's frame. Tallies (float64 (4,)): reflected, transmitted, side escaped
 NumPy twin: tests/twins.py (ordinates_sweep).
 """
 import numba as nb
-import numpy as np
 
 from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
 
