@@ -8,7 +8,8 @@ Variants (KEY: what differs from the default method): "default" (sweeps + diffus
 cell's light kept in fixed anisotropy bins, so the walk is linear in the light), "walk" and
 "binned-walk" (the same walks alone), "ordinates" (the six-ordinate walk,
 kernels/ordinates.py, which walks all of a sun's light; point lights keep the sweeps and the
-diffusion stage). Default: all five. ``--gather N``: method.gather of every variant (default:
+diffusion stage), "fine-diffusion" (the default with its diffusion stage on the domain's own
+cells, ``diffusion_resolution = 0``, instead of blocks of them). Default: all six. ``--gather N``: method.gather of every variant (default:
 the method's, 64 directions; 0: the fields' lobes light the camera, kernels/gather.py).
 
 NAME: "regression" (tests/fixtures/regression_cloud), a scene of scenes/accuracy/ (reference in
@@ -34,7 +35,8 @@ VARIANTS = {"default": ("sweeps + diffusion, gathered (default)", {}),
             "binned": ("binned + diffusion", {"solver": "binned"}),
             "walk": ("sweeps, walk alone", {"isotropic": "walk"}),
             "binned-walk": ("binned, walk alone", {"solver": "binned", "isotropic": "walk"}),
-            "ordinates": ("six ordinates", {"solver": "ordinates"})}
+            "ordinates": ("six ordinates", {"solver": "ordinates"}),
+            "fine-diffusion": ("sweeps + diffusion on the domain's own cells", {"diffusion_resolution": 0})}
 
 
 def case(name: str) -> tuple[Path, Path]:
