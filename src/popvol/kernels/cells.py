@@ -11,7 +11,9 @@ expressions they replace made five to ten domain-sized float64 temporaries each)
   "Hand-over", Eq. 17);
 - :func:`direct_fluence`: the unscattered light of a sun at the cell centres (Eq. 22);
 - :func:`hand_over_pending`: the packets still pending in the diffusion region when the walk
-  stops go to the diffusion stage.
+  stops go to the diffusion stage;
+- :func:`face_neighbour`: the cell across one of a cell's six faces (the diffusion stage's
+  stencil and the six-ordinate walk's steps).
 
 The arithmetic is float64, the arrays float32. NumPy twins: tests/twins.py (medium_factors,
 handover_factor, direct_fluence, hand_over_pending).
@@ -26,6 +28,18 @@ from .reduction import ordered_sum
 
 #: the decay rate standing for g <= 0 with the ``paper`` decay (g^x = 0 for any x > 0)
 STOPPED = 1e30
+
+
+@nb.njit(inline="always", cache=True)
+def face_neighbour(k, i, j, n):
+    """The cell across face ``n`` of cell (k, i, j), faces in the order +k, -k, +i, -i, +j, -j
+    (a rectilinear domain's +d, -d, +u, -u, +v, -v); it may lie outside the grid."""
+    step = 1 - 2 * (n % 2)
+    if n < 2:
+        return k + step, i, j
+    if n < 4:
+        return k, i + step, j
+    return k, i, j + step
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)

@@ -25,6 +25,7 @@ import math
 import numba as nb
 import numpy as np
 
+from .cells import face_neighbour
 from .reduction import ordered_sum, row_dot
 
 
@@ -38,17 +39,12 @@ def g_boundary(Dp, h):
     return h * h * 2.0 * Dp / (4.0 * Dp + h)
 
 
-@nb.njit(inline="always", cache=True)
-def _neighbour(k, i, j, nbh):
-    return (k + (nbh == 0) - (nbh == 1), i + (nbh == 2) - (nbh == 3), j + (nbh == 4) - (nbh == 5))
-
-
 @nb.njit(fastmath=True, cache=True, nogil=True)
 def region_rows(D, sah3, mask, h, bw, cells, index, nbr, G, diag):
     """The rows of A at the region's cells, for :func:`apply_rows`: row m is cell cells[m] (a
     flat C-order index of the grid); ``index`` int32 (grid shape) holds each region cell's row
     (-1 elsewhere). Writes nbr int32 (n, 6), the row of the region neighbour across each face
-    (in :func:`_neighbour`'s order; -1 where the neighbour is outside the grid or the region),
+    (in :func:`cells.face_neighbour`'s order; -1 where the neighbour is outside the grid or the region),
     G float64 (n, 6), that face's conductance (0 where there is none), and diag float64 (n,),
     A's diagonal: sigma_a h^3, then face by face G_pq or the boundary's w_p G_b (docs/METHOD.md
     Eq. 19). Once per solve."""
@@ -61,7 +57,7 @@ def region_rows(D, sah3, mask, h, bw, cells, index, nbr, G, diag):
         Dp = D[k, i, j]
         d = np.float64(sah3[k, i, j])
         for nbh in range(6):
-            kq, iq, jq = _neighbour(k, i, j, nbh)
+            kq, iq, jq = face_neighbour(k, i, j, nbh)
             if 0 <= kq < n0 and 0 <= iq < n1 and 0 <= jq < n2 and mask[kq, iq, jq]:
                 g = g_face(Dp, D[kq, iq, jq], h)
                 d += g
@@ -154,7 +150,7 @@ def leaks(phi, D, mask, h, bw):
                     continue
                 g = g_boundary(D[k, i, j], h) * bw[k, i, j] * phi[k, i, j]
                 for nbh in range(6):
-                    kq, iq, jq = _neighbour(k, i, j, nbh)
+                    kq, iq, jq = face_neighbour(k, i, j, nbh)
                     if kq < 0:
                         r += g
                     elif kq >= n0:

@@ -32,6 +32,7 @@ NumPy twin: tests/twins.py (ordinates_sweep).
 """
 import numba as nb
 
+from .cells import face_neighbour
 from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
 
 #: columns of the ordinates' table (walk.ordinate_table): front share, side share (each),
@@ -92,14 +93,7 @@ def ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, F, w_min, forward_d, fo
                             e, q, a = sent * ps, n, mj
                         if e <= 0.0:
                             continue
-                        step = 1 - 2 * (n % 2)
-                        k2, i2, j2 = k, i, j
-                        if n < 2:
-                            k2 += step
-                        elif n < 4:
-                            i2 += step
-                        else:
-                            j2 += step
+                        k2, i2, j2 = face_neighbour(k, i, j, n)
                         if k2 < 0:
                             refl += e
                         elif k2 >= n0:
