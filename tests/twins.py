@@ -203,14 +203,17 @@ def ordinates_sweep(W, Wa, Th, Dh, inv_area, phi, F, w_min, forward_d, forward_u
 
 
 def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, phia, tally,
-          band_rows=16, handover=-1.0, diffusive=None, Q=None):
+          band_rows=16, handover=-1.0, diffusive=None, Q=None, a_stream=1.0):
     """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), cell by cell, in place.
 
     (R, Ra) hold what has arrived at each cell, before the cell's own half step. Visiting order:
     slices along +d (``forward``) or -d; in each slice the bands of ``band_rows`` rows of u one
     after the other (the kernel runs them in parallel: they touch disjoint rows), rows and
     columns increasing, or decreasing if ``flip``. A side part that crosses into another band
-    waits until the end of the sweep. Cells whose pending energy is <= w_min keep it.
+    waits until the end of the sweep. Cells whose pending energy is <= w_min keep it. In an
+    empty cell (Th = Dh = 1) a packet with a >= ``a_stream`` goes on whole to the front
+    neighbour, keeping its a (with ``a_stream`` = 1 that is collimated light, which the exact
+    split sends all to the front anyway).
     Returns the energy still pending.
     """
     n0, n1, n2 = R.shape
@@ -239,6 +242,13 @@ def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, ph
                     tally[ABSORBED] += w * (1 - th)                   # the sender's
                     phi[k, i, j] += w * inv_area
                     phia[k, i, j] += wa * inv_area
+                    if th == 1.0 and dh == 1.0 and wa >= a_stream * w:   # streams on unsplit
+                        if k + 1 < n0:
+                            R[k + 1, i, j] += w
+                            Ra[k + 1, i, j] += wa
+                        else:
+                            tally[TRANSMITTED] += w
+                        continue
                     (ef, mf), (es, ms), (eb, mb) = split_exact(w, wa, rule)
                     for kn, e, m, slot in ((k + 1, ef, mf, TRANSMITTED), (k - 1, eb, mb, REFLECTED)):
                         if 0 <= kn < n0:

@@ -273,7 +273,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         Th, Dh: float32 (n_d, n_u, n_v) half-step factors from :func:`medium_factors`.
         injection: (n_u, n_v) power [W] entering each cell of slice 0 (E h^2 for a sun).
             The light travels half a cell to the first centre, so it is attenuated by Th[0].
-        a0: anisotropy of the injected lobe (1 = collimated).
+        a0: anisotropy of the injected lobe (1 = collimated). With the sweep solver, a packet
+            at least this anisotropic crosses empty cells unsplit (docs/METHOD.md, "Streaming
+            through empty cells").
         h: cell size; fluence accumulates W / h^2 per visit.
         rule: "moment" or "paper"; solver: "sweep", "jacobi", "binned" (the Jacobi wavefront
             with each cell's light in fixed anisotropy bins, linear in the light:
@@ -340,6 +342,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         Wa = W * np.float32(a0)
         in_flight = budget.injected
         bands = K.band_edges(shape[1])
+        # the injected light's lobe streams through empty cells unsplit (docs/METHOD.md,
+        # "Streaming through empty cells")
+        a_stream = np.float32(min(a0, 1.0))
         halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
         tally_b = np.zeros((len(bands) - 1, 5))
         visited = np.diff(bands) * shape[0] * shape[2]
@@ -349,7 +354,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             # dealt to the threads by the work each did in the sweep before
             band_lane = K.band_lanes(tally_b[:, 4], visited, numba.get_num_threads())
             left = K.sweep(W, Wa, Th, Dh, table, moment, periodic, it % 2 == 0, it % 4 >= 2, w_min,
-                           inv_area, phi, phia, bands, band_lane, halo, tally_b, tally, eps, diffusive, Q)
+                           inv_area, phi, phia, bands, band_lane, halo, tally_b, tally, eps, diffusive, Q,
+                           a_stream)
             return left, tally_b[:, 4].sum()
         in_flight, it, sent = sweep_until_converged(one_sweep, in_flight, target, cap, Th.size,
                                                     budget.injected, progress)

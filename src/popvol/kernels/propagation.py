@@ -259,11 +259,13 @@ def _add(R, Ra, k, i, j, e, ea):
 
 @nb.njit(**ON_ITS_OWN)
 def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, halo, handover,
-          diffusive, Q, b, lo, hi, k, i, j, tallies):
+          diffusive, Q, b, lo, hi, k, i, j, tallies, a_stream):
     """Cell (k, i, j) of band b (rows lo .. hi - 1) sends what has arrived, if it exceeds w_min:
     its half step, the hand-over or the visit to (phi, phia), then the split to its six
-    neighbours, side parts into another band parked in ``halo``. ``tallies`` = (reflected,
-    transmitted, side escaped, absorbed, cells that sent) so far; returns them updated."""
+    neighbours, side parts into another band parked in ``halo``; in an empty cell a packet with
+    a >= ``a_stream`` goes on whole to the front neighbour instead (docs/METHOD.md, "Streaming
+    through empty cells"). ``tallies`` = (reflected, transmitted, side escaped, absorbed, cells
+    that sent) so far; returns them updated."""
     refl, trans, side_out, absorbed, sent = tallies
     n0, n1, n2 = R.shape
     w = R[k, i, j]
@@ -283,9 +285,10 @@ def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, ha
         return refl, trans, side_out, absorbed, sent
     phi[k, i, j] += w * inv_area
     phia[k, i, j] += wa * inv_area
-    if wa >= w and thd == 1.0:
-        # collimated light (a = 1) in empty space: the split sends it all to the front (front
-        # share 1, conditional mean 1), so skip the table
+    if wa >= a_stream * w and thd == 1.0:
+        # an empty cell (nothing absorbs or scatters) and a lobe at least as narrow as the
+        # light's own (a_stream = its a0; 1 for a sun, whose collimated light the split would
+        # send all to the front anyway): it streams on unsplit, keeping its a
         if k + 1 < n0:
             _add(R, Ra, k + 1, i, j, w, wa)
         else:
@@ -324,13 +327,14 @@ def _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia, ha
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
-                phia, bands, band_lane, halo, tally_b, handover, diffusive, Q):
+                phia, bands, band_lane, halo, tally_b, handover, diffusive, Q, a_stream):
     """One sweep over all slices (``forward``: k = 0, 1, ...), each band by one thread, the
     lanes of ``band_lane`` (int64 (n_bands,), :func:`band_lanes`) in parallel;
     within a slice rows and columns run in increasing order, or decreasing if ``flip``.
     A cell sends only if its pending energy exceeds ``w_min`` (below it the energy stays pending,
     counted as in flight, and is sent once more has arrived: thresholded Gauss-Seidel, as in
-    Southwell relaxation or progressive radiosity).
+    Southwell relaxation or progressive radiosity). In an empty cell a packet with a >=
+    ``a_stream`` (float32: the light's a0) streams on unsplit to the front neighbour.
 
     Rows go two at a time, the second one column behind the first: cell (i + 1, j - 1) runs
     beside (i, j), after everything that row order puts before it (its row's cell j - 2, and
@@ -360,22 +364,22 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
                         for sj in range(n2):
                             j = n2 - 1 - sj if flip else sj
                             first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                                          halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
+                                          halo, handover, diffusive, Q, b, lo, hi, k, i, j, first, a_stream)
                         continue
                     i2 = i - 1 if flip else i + 1         # the second row, one column behind
                     j = n2 - 1 if flip else 0
                     first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                                  halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
+                                  halo, handover, diffusive, Q, b, lo, hi, k, i, j, first, a_stream)
                     for sj in range(1, n2):
                         j = n2 - 1 - sj if flip else sj
                         j2 = j + 1 if flip else j - 1
                         first = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                                      halo, handover, diffusive, Q, b, lo, hi, k, i, j, first)
+                                      halo, handover, diffusive, Q, b, lo, hi, k, i, j, first, a_stream)
                         second = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                                       halo, handover, diffusive, Q, b, lo, hi, k, i2, j2, second)
+                                       halo, handover, diffusive, Q, b, lo, hi, k, i2, j2, second, a_stream)
                     j = 0 if flip else n2 - 1
                     second = _send(R, Ra, Th, Dh, table, moment, periodic, w_min, inv_area, phi, phia,
-                                   halo, handover, diffusive, Q, b, lo, hi, k, i2, j, second)
+                                   halo, handover, diffusive, Q, b, lo, hi, k, i2, j, second, a_stream)
             tally_b[b, REFLECTED] += first[0] + second[0]
             tally_b[b, TRANSMITTED] += first[1] + second[1]
             tally_b[b, SIDE_ESCAPED] += first[2] + second[2]
@@ -405,14 +409,15 @@ def deliver_halo(R, Ra, bands, halo):
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
 def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi, phia,
-          bands, band_lane, halo, tally_b, tally, handover, diffusive, Q):
+          bands, band_lane, halo, tally_b, tally, handover, diffusive, Q, a_stream=np.float32(1.0)):
     """One Gauss-Seidel sweep (see above), the bands dealt to lanes by ``band_lane``
     (:func:`band_lanes`); adds the sweep's tallies to ``tally`` and returns the energy still
     pending (arrived, before the receivers' half steps). tally_b[:, 4] then holds how many
-    cells sent, per band."""
+    cells sent, per band. ``a_stream``: packets at least this anisotropic stream through
+    empty cells unsplit (the light's a0; 1, a sun's, only collimated light)."""
     tally_b[:] = 0.0
     sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi,
-                phia, bands, band_lane, halo, tally_b, handover, diffusive, Q)
+                phia, bands, band_lane, halo, tally_b, handover, diffusive, Q, a_stream)
     deliver_halo(R, Ra, bands, halo)
     for b in range(tally_b.shape[0]):
         for c in range(4):
