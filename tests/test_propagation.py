@@ -222,6 +222,34 @@ def test_binned_walk_is_linear_in_the_light(rng):
     assert np.abs(merged_apart - merged).max() > 10 * np.abs(apart - together).max()
 
 
+def sweep_as_twin(W, Wa, Th, Dh, rule, periodic, forward, flip, w_min, handover, diffusive, a_stream=1.0):
+    """One sweep of (W, Wa) by the kernel and by its NumPy twin (tests/twins.py), compared: the
+    pending state, the fields, the hand-over and the tallies. Returns the twin's tallies and
+    hand-over, and the power still pending."""
+    shape = W.shape
+    Q, Q_r = np.zeros((2,) + shape, np.float32), np.zeros((2,) + shape)
+    R, Ra = W.copy(), Wa.copy()
+    phi, phia = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
+    bands = K.band_edges(shape[1])
+    halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
+    tally_b, tally = np.zeros((len(bands) - 1, 5)), np.zeros(4)
+    band_lane = K.band_lanes(np.zeros(len(bands) - 1), np.diff(bands), 2)
+    pending = K.sweep(R, Ra, Th, Dh, split_table(), rule == "moment", periodic, forward, flip, w_min, 2.0, phi,
+                      phia, bands, band_lane, halo, tally_b, tally, handover, diffusive, Q, np.float32(a_stream))
+
+    R_r, Ra_r = W.astype(np.float64), Wa.astype(np.float64)
+    phi_r, phia_r, tally_r = np.zeros(shape), np.zeros(shape), np.zeros(4)
+    pending_r = ref.sweep(R_r, Ra_r, Th, Dh, rule, periodic, forward, flip, w_min, 2.0, phi_r, phia_r,
+                          tally_r, handover=handover, diffusive=diffusive, Q=Q_r, a_stream=a_stream)
+    np.testing.assert_allclose(Q, Q_r, rtol=5e-5, atol=1e-7)
+    np.testing.assert_allclose(R, R_r, rtol=5e-5, atol=1e-7)
+    np.testing.assert_allclose(Ra, Ra_r, rtol=5e-5, atol=1e-6)
+    np.testing.assert_allclose(phi, phi_r, rtol=5e-5, atol=1e-7)
+    np.testing.assert_allclose(tally, tally_r, rtol=5e-5, atol=1e-7)
+    assert pending == pytest.approx(pending_r, rel=5e-5)
+    return tally_r, Q_r, pending_r
+
+
 # shapes: one band; three bands (16, 16, 5 rows); an odd band of one column. The kernel sends a
 # band's rows in pairs, the second a column behind; the twin goes row by row
 @pytest.mark.parametrize("rule", ["moment", "paper"])
@@ -231,29 +259,9 @@ def test_binned_walk_is_linear_in_the_light(rng):
 @pytest.mark.parametrize("handover", [-1.0, 0.6])
 def test_sweep_kernel_equals_numpy_twin(rule, forward, flip, periodic, shape, handover, rng):
     W, Wa, Th, Dh = random_state(rng, shape, signed=rule == "moment")
-    diffusive = hand_over_factors(rng, shape)
-    Q, Q_r = np.zeros((2,) + shape, np.float32), np.zeros((2,) + shape)
     w_min = float(np.quantile(W, 0.4))       # some non-empty cells hold their packets back
-    table = split_table()
-    R, Ra = W.copy(), Wa.copy()
-    phi, phia = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
-    bands = K.band_edges(shape[1])
-    halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
-    tally_b, tally = np.zeros((len(bands) - 1, 5)), np.zeros(4)
-    band_lane = K.band_lanes(np.zeros(len(bands) - 1), np.diff(bands), 2)
-    pending = K.sweep(R, Ra, Th, Dh, table, rule == "moment", periodic, forward, flip, w_min, 2.0, phi,
-                      phia, bands, band_lane, halo, tally_b, tally, handover, diffusive, Q)
-
-    R_r, Ra_r = W.astype(np.float64), Wa.astype(np.float64)
-    phi_r, phia_r, tally_r = np.zeros(shape), np.zeros(shape), np.zeros(4)
-    pending_r = ref.sweep(R_r, Ra_r, Th, Dh, rule, periodic, forward, flip, w_min, 2.0, phi_r, phia_r,
-                          tally_r, handover=handover, diffusive=diffusive, Q=Q_r)
-    np.testing.assert_allclose(Q, Q_r, rtol=5e-5, atol=1e-7)
-    np.testing.assert_allclose(R, R_r, rtol=5e-5, atol=1e-7)
-    np.testing.assert_allclose(Ra, Ra_r, rtol=5e-5, atol=1e-6)
-    np.testing.assert_allclose(phi, phi_r, rtol=5e-5, atol=1e-7)
-    np.testing.assert_allclose(tally, tally_r, rtol=5e-5, atol=1e-7)
-    assert pending == pytest.approx(pending_r, rel=5e-5)
+    tally_r, Q_r, pending_r = sweep_as_twin(W, Wa, Th, Dh, rule, periodic, forward, flip, w_min, handover,
+                                            hand_over_factors(rng, shape))
     assert W.sum(dtype=np.float64) == pytest.approx(pending_r + tally_r.sum() + Q_r[0].sum(), rel=1e-9)
 
 
@@ -267,29 +275,10 @@ def test_sweep_streams_through_empty_cells_as_its_twin(forward, handover, a_stre
     W, Wa, Th, Dh = random_state(rng, shape)
     empty = rng.random(shape) < 0.35
     Th[empty], Dh[empty] = 1.0, 1.0
-    diffusive = hand_over_factors(rng, shape)
-    Q, Q_r = np.zeros((2,) + shape, np.float32), np.zeros((2,) + shape)
-    R, Ra = W.copy(), Wa.copy()
-    phi, phia = np.zeros(shape, np.float32), np.zeros(shape, np.float32)
-    bands = K.band_edges(shape[1])
-    halo = np.zeros((len(bands) - 1, 2, 2, shape[0], shape[2]), np.float32)
-    tally_b, tally = np.zeros((len(bands) - 1, 5)), np.zeros(4)
-    band_lane = K.band_lanes(np.zeros(len(bands) - 1), np.diff(bands), 2)
-    pending = K.sweep(R, Ra, Th, Dh, split_table(), True, False, forward, False, 0.0, 2.0, phi, phia,
-                      bands, band_lane, halo, tally_b, tally, handover, diffusive, Q, np.float32(a_stream))
-    R_r, Ra_r = W.astype(np.float64), Wa.astype(np.float64)
-    phi_r, phia_r, tally_r = np.zeros(shape), np.zeros(shape), np.zeros(4)
-    pending_r = ref.sweep(R_r, Ra_r, Th, Dh, "moment", False, forward, False, 0.0, 2.0, phi_r, phia_r, tally_r,
-                          handover=handover, diffusive=diffusive, Q=Q_r, a_stream=a_stream)
-    np.testing.assert_allclose(R, R_r, rtol=5e-5, atol=1e-7)
-    np.testing.assert_allclose(Ra, Ra_r, rtol=5e-5, atol=1e-6)
-    np.testing.assert_allclose(phi, phi_r, rtol=5e-5, atol=1e-7)
-    np.testing.assert_allclose(Q, Q_r, rtol=5e-5, atol=1e-7)
-    np.testing.assert_allclose(tally, tally_r, rtol=5e-5, atol=1e-7)
-    assert pending == pytest.approx(pending_r, rel=5e-5)
     # the state has packets that stream (empty cell, a >= a_stream), so the comparison covers them
-    streamed = empty & (W > 0) & (Wa >= a_stream * W)
-    assert streamed.any()
+    assert (empty & (W > 0) & (Wa >= a_stream * W)).any()
+    sweep_as_twin(W, Wa, Th, Dh, "moment", False, forward, False, 0.0, handover, hand_over_factors(rng, shape),
+                  a_stream)
 
 
 def test_band_lanes_deal_the_work_longest_first():
