@@ -38,7 +38,6 @@ import numpy as np
 
 import popvol
 from popvol import diffusion
-from popvol.kernels import diffusion as KD
 from popvol.metrics import relmse
 from popvol.walk import handover_factor, medium_factors, walk_box
 
@@ -99,8 +98,10 @@ class ResidualParts:
         source change), relative to ||b|| (the source change NaN where the grid changed)."""
         for D, sah3, mask, h, b, bw, x0, pb in self.rows:
             x = diffusion.fill_gaps(x0, mask)
-            Ax = np.empty(x.shape, np.float32)
-            KD.apply(x, D, sah3, mask, h, Ax, bw)
+            space = diffusion.RowSpace(D, sah3, mask, h, np.ones(b.shape, np.float32) if bw is None else bw)
+            Axv = space.vector(np.float64)
+            space.apply(space.pack(x, np.float64), Axv)
+            Ax = space.unpack(Axv)
             xAx = float(np.dot(x.ravel().astype(np.float64), Ax.ravel()))
             scale = float(np.dot(x.ravel().astype(np.float64), b.ravel())) / xAx if xAx > 0 else 0.0
             r = b - scale * Ax.astype(np.float64)
