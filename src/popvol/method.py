@@ -141,7 +141,7 @@ KNOBS: tuple[Knob, ...] = (
          "`handover_scale` of the lights whose unscattered light is not kept apart.",
          "An environment's lights (and a sun with `a0` < 1) carry their single scattering in the "
          "walk's lobes, not in a direct field, so they stay in the walk longer: at a sun's threshold "
-         "(2) the sky-lit WDAS cloud is x0.62 of Mitsuba's brightness, at 0.5 x0.77 "
+         "(2) the sky-lit WDAS cloud is x0.64 of Mitsuba's brightness, at 0.5 x0.79 "
          "(docs/METHOD.md, \"Hand-over\").", experimental=True),
     Knob("diffusion_resolution", 64, (0, 4096), "Cells along the longest side of the diffusion grid.",
          "Its cells are blocks of the light's domain; 0 = the domain's own cells."),
