@@ -314,7 +314,8 @@ def test_sweep_is_the_same_for_any_dealing_of_bands_to_lanes(dealing, rng):
         tally_b, tally = np.zeros((n_bands, 5)), np.zeros(4)
         Q = np.zeros((2,) + shape, np.float32)
         pending = K.sweep(R, Ra, Th, Dh, split_table(), True, False, True, False, 0.0, 2.0, phi, phia,
-                          bands, deal[name].astype(np.int64), halo, tally_b, tally, 0.6, diffusive, Q)
+                          bands, deal[name].astype(np.int64), halo, tally_b, tally, 0.6, diffusive, Q,
+                          np.float32(1.0))
         out[name] = (R, Ra, phi, phia, tally_b, tally, np.array([pending]))
     for a, b in zip(out["one lane"], out[dealing]):
         assert np.array_equal(a, b)

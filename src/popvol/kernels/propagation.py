@@ -409,7 +409,7 @@ def deliver_halo(R, Ra, bands, halo):
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
 def sweep(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, inv_area, phi, phia,
-          bands, band_lane, halo, tally_b, tally, handover, diffusive, Q, a_stream=np.float32(1.0)):
+          bands, band_lane, halo, tally_b, tally, handover, diffusive, Q, a_stream):
     """One Gauss-Seidel sweep (see above), the bands dealt to lanes by ``band_lane``
     (:func:`band_lanes`); adds the sweep's tallies to ``tally`` and returns the energy still
     pending (arrived, before the receivers' half steps). tally_b[:, 4] then holds how many
