@@ -118,53 +118,86 @@ def binned_step(W, ab, shares, Th, Dh, periodic, inv_area, phi, phia, tally, han
     return W_new
 
 
-def ordinates_step(W, Wa, Th, Dh, inv_area, phi, F, tally):
+def _ahead(x, axis, step):
+    """x at each cell's neighbour one cell along ``axis`` (``step`` +1 or -1), in the cell's own
+    coordinates; 1 where the neighbour is outside the grid."""
+    pad = [(0, 0)] * x.ndim
+    pad[axis] = (0, 1) if step > 0 else (1, 0)
+    padded = np.pad(x, pad, constant_values=1.0)
+    idx = [slice(None)] * x.ndim
+    idx[axis] = slice(1, None) if step > 0 else slice(0, -1)
+    return padded[tuple(idx)]
+
+
+def _ordinate_parts(o, a, S, D):
+    """The parts of a packet of ordinate o with anisotropy a (float64 arrays) of which the share
+    S crosses its transfer unscattered and whose mean cosine decays by D over it: a list of
+    (ordinate, share, outgoing anisotropy) over the six directions n, the unscattered part first
+    (ordinate o, keeping a), then the scattered part, a_s = a (D - S) / (1 - S), split by the
+    cone partition about e_o (front m_front, back -m_back into o ^ 1, sides the wedge's mean
+    cosine, hg.side_wedge_mean_cosine, each into its own ordinate n)."""
+    scattered = 1.0 - S
+    a_s = np.clip(np.divide(a * (D - S), scattered, out=np.zeros(np.shape(a)), where=scattered > 0), -1.0, 1.0)
+    fr, sd, bk = hg.split_fractions(a_s)
+    mf, _, mb = hg.conditional_mean_cosines(a_s)
+    mj = hg.side_wedge_mean_cosine(a_s)
+    parts = [(o, o, S, a)]
+    for n in range(6):
+        share, m = ((fr, mf) if n == o else (bk, -mb) if n == o ^ 1 else (sd, mj))
+        parts.append((n, n, scattered * share, m))
+    return parts
+
+
+def ordinates_step(W, Wa, Th, Sh, Dh, inv_area, phi, F, tally):
     """One iteration of the six-ordinate Jacobi wavefront, every pending packet sent one cell:
     the fixed point that the kernel's sweeps (kernels.ordinates.ordinates_sweep) reach but for
     the order in which packets merge (tests/test_ordinates.py).
     W, Wa (6, n_d, n_u, n_v): power and power times anisotropy pending in ordinate o = 0..5
-    (+d, -d, +u, -u, +v, -v) of each cell; a packet's lobe HG_a about e_o splits by the cone
-    partition about e_o: front on in ordinate o (a' = m_front), back into ordinate o ^ 1
-    (a' = -m_back), each side part into the ordinate of its own direction (a' = the wedge's mean
-    cosine about that direction, hg.side_wedge_mean_cosine); moved one cell (Th, Dh of sender
+    (+d, -d, +u, -u, +v, -v) of each cell. A packet of lobe HG_a about e_o crosses its transfer
+    to the neighbour along e_o unscattered with the share S = Sh[src] Sh[dst] and keeps a; the
+    rest scatters with a_s = a (D - S) / (1 - S), D = Dh[src] Dh[dst], and splits by the cone
+    partition about e_o (:func:`_ordinate_parts`); every part is moved one cell (Th of sender
     and receiver). Accumulates phi and F (3, ...), the first moment in the domain's frame.
     Returns the next (W, Wa), float64."""
-    Th, Dh = Th.astype(np.float64), Dh.astype(np.float64)
+    Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
     W, Wa = np.asarray(W, np.float64), np.asarray(Wa, np.float64)
     W_new, Wa_new = np.zeros(W.shape), np.zeros(W.shape)
+    ones = np.ones(Th.shape)
     for o in range(6):
         sign = 1.0 - 2.0 * (o % 2)
         phi += W[o] * inv_area
         F[o // 2] += sign * Wa[o] * inv_area
         a = np.clip(np.divide(Wa[o], W[o], out=np.zeros(W[o].shape), where=W[o] > 0), -1.0, 1.0)
-        fr, sd, bk = hg.split_fractions(a)
-        mf, _, mb = hg.conditional_mean_cosines(a)
-        mj = hg.side_wedge_mean_cosine(a)
-        for n in range(6):
+        S = Sh * _ahead(Sh, o // 2, 1 - 2 * (o % 2))
+        D = Dh * _ahead(Dh, o // 2, 1 - 2 * (o % 2))
+        for n, q, share, m in _ordinate_parts(o, a, S, D):
             axis, step = n // 2, 1 - 2 * (n % 2)
-            if n == o:
-                e, m, q = W[o] * fr, mf, o
-            elif n == o ^ 1:
-                e, m, q = W[o] * bk, -mb, n
-            else:
-                e, m, q = W[o] * sd, mj, n
             slot = (TRANSMITTED if step > 0 else REFLECTED) if axis == 0 else SIDE_ESCAPED
-            e_in, ea_in = _move(e, m, Th, Dh, axis, step, False, tally, slot)
+            e_in, ea_in = _move(W[o] * share, m, Th, ones, axis, step, False, tally, slot)
             W_new[q] += e_in
             Wa_new[q] += ea_in
     return W_new, Wa_new
 
 
-def ordinates_sweep(W, Wa, Th, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
     """One Gauss-Seidel sweep of the six-ordinate walk (twin of kernels.ordinates.ordinates_sweep),
     cell by cell, in place, in float64. Cells in order of k, i, j (each increasing if its
     ``forward_*``); at each cell the ordinates o = 0..5 (+d, -d, +u, -u, +v, -v) in turn: a packet
-    above ``w_min`` is taken, visits (phi, F), and splits as ordinates_step's (exact HG shares),
-    each part moved one cell into its ordinate's pending packet there (Th, Dh of sender and
+    above ``w_min`` is taken, visits (phi, F), and is sent as ordinates_step's (exact HG shares),
+    each part moved one cell into its ordinate's pending packet there (Th of sender and
     receiver), what leaves the grid tallied. Returns the number of packets sent."""
     n0, n1, n2 = Th.shape
-    Th, Dh = Th.astype(np.float64), Dh.astype(np.float64)
+    Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
     sent_packets = 0
+
+    def inside(c):
+        return 0 <= c[0] < n0 and 0 <= c[1] < n1 and 0 <= c[2] < n2
+
+    def neighbour(c, n):
+        c = list(c)
+        c[n // 2] += 1 - 2 * (n % 2)
+        return tuple(c)
+
     for k in (range(n0) if forward_d else range(n0 - 1, -1, -1)):
         for i in (range(n1) if forward_u else range(n1 - 1, -1, -1)):
             for j in (range(n2) if forward_v else range(n2 - 1, -1, -1)):
@@ -177,28 +210,27 @@ def ordinates_sweep(W, Wa, Th, Dh, inv_area, phi, F, w_min, forward_d, forward_u
                     sent_packets += 1
                     phi[k, i, j] += w * inv_area
                     F[o // 2, k, i, j] += (1.0 - 2.0 * (o % 2)) * wa * inv_area
-                    a = np.clip(wa / w, -1.0, 1.0)
-                    fr, sd, bk = (float(np.ravel(x)[0]) for x in hg.split_fractions(np.array([a])))
-                    mf, _, mb = (float(np.ravel(x)[0]) for x in hg.conditional_mean_cosines(np.array([a])))
-                    mj = float(np.ravel(hg.side_wedge_mean_cosine(np.array([a])))[0])
+                    ahead = neighbour((k, i, j), o)
+                    S = Sh[k, i, j] * (Sh[ahead] if inside(ahead) else 1.0)
+                    D = Dh[k, i, j] * (Dh[ahead] if inside(ahead) else 1.0)
                     sent = w * Th[k, i, j]
                     tally[ABSORBED] += w - sent
-                    for n in range(6):
-                        e, q, m = ((sent * fr, o, mf) if n == o else (sent * bk, n, -mb) if n == o ^ 1
-                                   else (sent * sd, n, mj))
-                        dst = [k, i, j]
-                        dst[n // 2] += 1 - 2 * (n % 2)
+                    parts = _ordinate_parts(o, np.array([np.clip(wa / w, -1.0, 1.0)]), np.array([S]),
+                                            np.array([D]))
+                    for n, q, share, m in parts:
+                        e, m = sent * float(np.ravel(share)[0]), float(np.ravel(m)[0])
+                        dst = neighbour((k, i, j), n)
                         if dst[0] < 0:
                             tally[REFLECTED] += e
                         elif dst[0] >= n0:
                             tally[TRANSMITTED] += e
-                        elif not (0 <= dst[1] < n1 and 0 <= dst[2] < n2):
+                        elif not inside(dst):
                             tally[SIDE_ESCAPED] += e
                         else:
-                            th2 = Th[tuple(dst)]
+                            th2 = Th[dst]
                             tally[ABSORBED] += e * (1.0 - th2)
-                            W[(q,) + tuple(dst)] += e * th2
-                            Wa[(q,) + tuple(dst)] += e * th2 * m * Dh[k, i, j] * Dh[tuple(dst)]
+                            W[(q,) + dst] += e * th2
+                            Wa[(q,) + dst] += e * th2 * m
     return sent_packets
 
 

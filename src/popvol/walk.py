@@ -232,9 +232,18 @@ def walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia, tall
     return it, in_flight, absorbed
 
 
-def walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
-                    ) -> tuple[int, float, float, int]:
-    """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box`, by thresholded
+def scatter_factor(sigma_s, h: float) -> np.ndarray:
+    """float32 (sigma_s's shape): per cell, the half-step no-scatter transmittance Sh = exp(-sigma_s
+    h / 2), so that exp(-sigma_s s) over a transfer is Sh of sender times Sh of receiver; the
+    six-ordinate walk's share of a packet that crosses a transfer unscattered (docs/METHOD.md,
+    "Six ordinates")."""
+    return np.exp(np.asarray(sigma_s, np.float32) * np.float32(-0.5 * h))
+
+
+def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
+                   ) -> tuple[int, float, float, int]:
+    """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
+    domain's shape, :func:`scatter_factor`), by thresholded
     Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
     in the mean pending power): the injected light enters ordinate +d; the sweeps alternate +d
     / -d every sweep, the order along u every second and along v every fourth. Returns
@@ -254,7 +263,7 @@ def walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally, target, ca
     injected = float(np.sum(injection, dtype=np.float64))
 
     def one_sweep(it, w_min):
-        sent = KO.ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
+        sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
                                   it % 4 < 2, it % 8 < 4, tally)
         return K.total_energy(W.reshape((6 * shape[0],) + shape[1:])), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
@@ -265,7 +274,8 @@ def walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally, target, ca
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
              max_iterations: int = 0, periodic: bool = False, progress=None,
-             handover: tuple[float, np.ndarray] | None = None) -> WalkResult:
+             handover: tuple[float, np.ndarray] | None = None, scatter: np.ndarray | None = None
+             ) -> WalkResult:
     """Walk light injected into slice k = 0 of a rectilinear domain until (almost) all of it
     has left.
 
@@ -290,6 +300,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         handover: (method.handover_scale, float32 (n_d, n_u, n_v) :func:`handover_factor`): a
             packet whose |a| is below their product leaves the walk; its power and moment are
             returned in ``handed``. None: light walks until it leaves.
+        scatter: float32 (n_d, n_u, n_v) :func:`scatter_factor`, which the six-ordinate walk
+            needs (the share of a packet that crosses a transfer unscattered); the other
+            solvers ignore it.
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -329,9 +342,12 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
     elif solver == "ordinates":
         if handover is not None or periodic or not moment:
             raise ValueError("the six-ordinate walk has no hand-over, periodic faces or 'paper' rule")
+        if scatter is None:
+            raise ValueError("the six-ordinate walk needs scatter (walk.scatter_factor)")
         flux = np.zeros((3,) + shape, np.float32)
-        it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, injection, a0, inv_area, phi, flux, tally,
-                                                              target, cap, progress)
+        Sh = np.ascontiguousarray(scatter, np.float32)
+        it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
+                                                              tally, target, cap, progress)
         phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,

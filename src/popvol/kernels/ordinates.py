@@ -11,13 +11,19 @@ direction e_o (o = 0..5: +d, -d, +u, -u, +v, -v; o ^ 1 is the opposite of o):
          centre (after the receiver's half step), and power times the lobe's anisotropy
          about e_o.
 
-A packet splits by the cone partition about its own e_o (supplement Eq. 2, 4, 7; the shares of
-docs/METHOD.md Eq. 6): its front part goes on along e_o in ordinate o with anisotropy m_front
-(Eq. 8), its back part into ordinate o ^ 1 of the cell behind with |m_back|, and the side part
-toward the neighbour along e_n into ordinate n with the mean cosine, about e_n, of the side
-wedge of HG_a about e_o (``table`` column MJ). The side part's drift along e_o (m_side) is not
-carried. Each part decays by Dh[s] Dh[c] and is attenuated by Th[s] Th[c] (Eq. 11). So light
-that leaves sideways keeps going sideways.
+A packet is sent across one transfer to the neighbour along its own e_o (docs/METHOD.md, "Six
+ordinates"). The share S = Sh[s] Sh[c] of it that crosses unscattered (Sh = exp(-sigma_s h / 2),
+the half-step no-scatter transmittance of sender s and receiver c) goes on in ordinate o and
+keeps its lobe: only scattering changes a direction, so a lobe is not split again at every
+cell. The rest, 1 - S, scattered on the way, has the anisotropy a_s = a (D - S) / (1 - S) (D =
+Dh[s] Dh[c], so the mean cosine of the whole decays as Eq. 12) and splits by the cone
+partition about e_o (supplement Eq. 2, 4, 7; the shares of docs/METHOD.md Eq. 6): its front
+part goes on along e_o in ordinate o with anisotropy m_front (Eq. 8), its back part into
+ordinate o ^ 1 of the cell behind with |m_back|, and the side part toward the neighbour along
+e_n into ordinate n with the mean cosine, about e_n, of the side wedge of HG_a_s about e_o
+(``table`` column MJ). The side part's drift along e_o (m_side) is not carried. Every part is
+attenuated by Th[s] Th[n] (Eq. 11). So light keeps its direction until it scatters, and light
+that scatters sideways keeps going sideways.
 
 The packets are sent by thresholded Gauss-Seidel sweeps (:func:`ordinates_sweep`), cell by
 cell in place, as the one-lobe walk's sweeps are (kernels/propagation.py): a part sent to a
@@ -42,13 +48,14 @@ PF, PS, PB, MF, MS, MB, MJ = range(7)
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
-    a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and split to
-    its six neighbours' pending packets, in place (what leaves the domain is tallied, as what
-    the half steps absorb). Packets at or below ``w_min`` stay pending. One thread. Returns the
-    number of packets sent."""
+    a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
+    in place: what crosses to the next cell along its ordinate unscattered keeps its lobe, what
+    scatters on the way is split to the six neighbours (module docstring). What leaves the
+    domain is tallied, as what the half steps absorb. Packets at or below ``w_min`` stay
+    pending. One thread. Returns the number of packets sent."""
     n0, n1, n2 = Th.shape
     nt = table.shape[0]
     refl = trans = side_out = absorbed = 0.0
@@ -61,6 +68,7 @@ def ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, F, w_min, forward_d, fo
                 j = jj if forward_v else n2 - 1 - jj
                 th = Th[k, i, j]
                 dh = Dh[k, i, j]
+                sh = Sh[k, i, j]
                 for o in range(6):
                     w = W[o, k, i, j]
                     if w <= w_min:
@@ -72,7 +80,34 @@ def ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, F, w_min, forward_d, fo
                     sign = 1.0 - 2.0 * (o % 2)
                     phi[k, i, j] += w * inv_area
                     F[o // 2, k, i, j] += sign * wa * inv_area
-                    x = (wa / w + 1.0) * 0.5 * (nt - 1)
+                    a = wa / w
+                    sent = w * th                    # what the sender's half step leaves
+                    absorbed += w - sent
+                    # the part that crosses to the next cell along e_o unscattered keeps its lobe
+                    k2, i2, j2 = face_neighbour(k, i, j, o)
+                    inside = k2 >= 0 and k2 < n0 and i2 >= 0 and i2 < n1 and j2 >= 0 and j2 < n2
+                    S = sh * Sh[k2, i2, j2] if inside else sh
+                    D = dh * Dh[k2, i2, j2] if inside else dh
+                    e = sent * S
+                    if e > 0.0:
+                        if k2 < 0:
+                            refl += e
+                        elif k2 >= n0:
+                            trans += e
+                        elif not inside:
+                            side_out += e
+                        else:
+                            th2 = Th[k2, i2, j2]
+                            absorbed += e * (1.0 - th2)
+                            e *= th2
+                            W[o, k2, i2, j2] += e
+                            Wa[o, k2, i2, j2] += e * a
+                    es = sent - sent * S             # the part that scatters on the way
+                    if es <= 0.0:
+                        continue
+                    # its lobe: the mean cosine of the whole decays by D (Eq. 12), the unscattered
+                    # part keeps a, so the scattered part's is a (D - S) / (1 - S)
+                    x = (a * (D - S) / (1.0 - S) + 1.0) * 0.5 * (nt - 1)
                     x = min(max(x, 0.0), nt - 1.0)
                     t = min(int(x), nt - 2)
                     lam = x - t
@@ -82,15 +117,13 @@ def ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, F, w_min, forward_d, fo
                     mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
                     mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
                     mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
-                    sent = w * th                    # what the sender's half step leaves
-                    absorbed += w - sent
                     for n in range(6):
                         if n == o:
-                            e, q, a = sent * pf, o, mf
+                            e, q, m = es * pf, o, mf
                         elif n == (o ^ 1):
-                            e, q, a = sent * pb, n, -mb
+                            e, q, m = es * pb, n, -mb
                         else:
-                            e, q, a = sent * ps, n, mj
+                            e, q, m = es * ps, n, mj
                         if e <= 0.0:
                             continue
                         k2, i2, j2 = face_neighbour(k, i, j, n)
@@ -105,7 +138,7 @@ def ordinates_sweep(W, Wa, Th, Dh, table, inv_area, phi, F, w_min, forward_d, fo
                             absorbed += e * (1.0 - th2)
                             e *= th2
                             W[q, k2, i2, j2] += e
-                            Wa[q, k2, i2, j2] += e * a * dh * Dh[k2, i2, j2]
+                            Wa[q, k2, i2, j2] += e * m
     tally[REFLECTED] += refl
     tally[TRANSMITTED] += trans
     tally[SIDE_ESCAPED] += side_out

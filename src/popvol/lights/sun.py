@@ -16,7 +16,7 @@ from .. import check
 from ..domains import DirectionalDomain, directional_domain, resample_medium
 from ..errors import PopvolError
 from ..kernels.sampling import domain_to_world
-from ..walk import direct_fluence, handover_factor, medium_factors, walk_box
+from ..walk import direct_fluence, handover_factor, medium_factors, scatter_factor, walk_box
 from .base import HandOver, Light
 
 
@@ -125,8 +125,10 @@ class SunDomain(DirectionalDomain):
             scale = method.handover_scale if self.unscattered else method.environment_handover_scale
             handover = (scale, handover_factor(sigma_t, sigma_s, g, self.h))
         injection = np.full(self.shape[1:], self.h * self.h, np.float32)
+        scatter = scatter_factor(sigma_s, self.h) if method.solver == "ordinates" else None
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
-                          method.tolerance, method.max_iterations, progress=progress, handover=handover)
+                          method.tolerance, method.max_iterations, progress=progress, handover=handover,
+                          scatter=scatter)
         result.direct = self.direct_fluence(sigma_t)
         return result
 
