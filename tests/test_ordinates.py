@@ -11,7 +11,7 @@ import twins as ref
 from popvol import hg
 from popvol.errors import PopvolError
 from popvol.kernels import ordinates as KO
-from popvol.walk import direct_fluence, medium_factors, ordinate_table, scatter_factor, walk_box
+from popvol.walk import direct_fluence, medium_factors, ordinate_table, row_groups, scatter_factor, walk_box
 from test_propagation import uniform_factors
 
 
@@ -69,7 +69,7 @@ def test_ordinates_kernel_equals_numpy_twin(rng, order):
     tally = np.zeros(4)
     w_min = 0.2
     sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F, np.float32(w_min),
-                              *order, tally)
+                              *order, tally, np.array([0, shape[1]]), np.zeros(shape[1]))
 
     phi_r, F_r, tally_r = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
     before = W_r.sum()
@@ -84,6 +84,45 @@ def test_ordinates_kernel_equals_numpy_twin(rng, order):
     assert before == pytest.approx(W_r.sum() + tally_r.sum(), rel=1e-9)
     # every pending packet's anisotropy stays in [-1, 1]
     assert np.all(np.abs(Wa) <= W * (1 + 1e-5) + 1e-7)
+
+
+@pytest.mark.parametrize("order", [(True, True, True), (False, False, True)])
+def test_ordinates_kernel_is_the_same_on_any_number_of_lanes(rng, order):
+    """The sweep as a pipeline of row groups (kernels.ordinates.ordinates_sweep): the pending
+    packets, the fields and the tallies bitwise those of one group, with the rows cut into 2
+    groups evenly or unevenly, 3, or 11 of one row each (every row boundary a group boundary)."""
+    shape = (9, 11, 6)
+    W0 = (rng.random((6,) + shape) * (rng.random((6,) + shape) > 0.2)).astype(np.float32)
+    Wa0 = (W0 * rng.uniform(-1, 1, W0.shape)).astype(np.float32)
+    Th = rng.uniform(0.7, 1.0, shape).astype(np.float32)
+    Sh = rng.uniform(0.6, 1.0, shape).astype(np.float32)
+    Dh = np.maximum(Sh, rng.uniform(0.5, 1.0, shape)).astype(np.float32)
+
+    def sweep(edges):
+        W, Wa = W0.copy(), Wa0.copy()
+        phi, F, tally = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32), np.zeros(4)
+        work = np.zeros(shape[1])
+        for forward_d in (order[0], not order[0]):       # a second sweep meets the first's leftovers
+            sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F,
+                                      np.float32(0.05), forward_d, order[1], order[2], tally,
+                                      np.asarray(edges, np.int64), work)
+        return W, Wa, phi, F, tally, sent, work
+
+    one = sweep([0, 11])
+    assert one[5] > 0 and one[6].sum() > 0
+    for edges in ([0, 5, 11], [0, 1, 11], [0, 4, 8, 11], list(range(12))):
+        for a, b in zip(one, sweep(edges)):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_row_groups_share_out_the_work():
+    """walk.row_groups: cuts in the sweep's order of rows, each group about the same work."""
+    work = np.array([0, 0, 10, 10, 0, 0, 0, 0, 0, 0], float)
+    assert list(row_groups(work, 0.0, True, 2)) == [0, 3, 10]
+    assert list(row_groups(work, 0.0, False, 2)) == [0, 7, 10]    # positions counted from the last row
+    assert list(row_groups(np.zeros(10), 8.0, True, 2)) == [0, 5, 10]
+    assert list(row_groups(np.zeros(3), 8.0, True, 8)) == [0, 1, 2, 3]
+    assert list(row_groups(np.zeros(5), 8.0, True, 1)) == [0, 5]
 
 
 def test_sweeps_reach_the_wavefronts_fixed_point(rng):

@@ -240,6 +240,23 @@ def scatter_factor(sigma_s, h: float) -> np.ndarray:
     return np.exp(np.asarray(sigma_s, np.float32) * np.float32(-0.5 * h))
 
 
+def row_groups(row_work: np.ndarray, visits: float, forward_u: bool, lanes: int) -> np.ndarray:
+    """int64 (groups + 1,): where to cut the rows of a six-ordinate sweep into one group per
+    thread (kernels.ordinates.ordinates_sweep), as row positions in the sweep's order along u:
+    the cuts share out each row's work, ``row_work`` (float (n_u,), packets sent per row i in
+    the sweep before) plus ``visits`` / propagation.VISIT_COST per row (its cells' visits),
+    evenly. At most ``lanes`` groups, none empty. Where the rows are cut never changes the
+    result, only the time."""
+    n1 = row_work.shape[0]
+    work = row_work + visits / K.VISIT_COST
+    if not forward_u:
+        work = work[::-1]
+    cum = np.cumsum(work)
+    groups = max(min(int(lanes), n1), 1)
+    cuts = np.searchsorted(cum, cum[-1] * np.arange(1, groups) / groups, side="right")
+    return np.unique(np.concatenate(([0], np.clip(cuts, 1, n1 - 1), [n1]))).astype(np.int64)
+
+
 def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
                    ) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
@@ -262,9 +279,14 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
     injected = float(np.sum(injection, dtype=np.float64))
 
+    row_work = np.zeros(shape[1])
+    lanes = numba.get_num_threads()
+
     def one_sweep(it, w_min):
+        # the rows cut into one group per thread by the work each row did in the sweep before
+        edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
-                                  it % 4 < 2, it % 8 < 4, tally)
+                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work)
         return K.total_energy(W.reshape((6 * shape[0],) + shape[1:])), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * int(np.prod(shape)), injected, progress)

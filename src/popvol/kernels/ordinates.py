@@ -28,7 +28,8 @@ that scatters sideways keeps going sideways.
 The packets are sent by thresholded Gauss-Seidel sweeps (:func:`ordinates_sweep`), cell by
 cell in place, as the one-lobe walk's sweeps are (kernels/propagation.py): a part sent to a
 cell later in the sweep's order is sent on in the same sweep, so light crosses the domain along
-every ordinate that the sweep's order follows in one sweep.
+every ordinate that the sweep's order follows in one sweep. One cell's send is :func:`_send`;
+the sweep runs it on threads as a pipeline of row groups that gives the bits of one thread.
 
 Fields (per unit area, accumulated at every visit, Eq. 14): phi float32 (n_d, n_u, n_v) the
 fluence, F float32 (3, n_d, n_u, n_v) its first moment (the sum over ordinates of W a e_o) in
@@ -37,9 +38,12 @@ the domain's frame. Tallies (float64 (4,)): reflected, transmitted, side escaped
 NumPy twin: tests/twins.py (ordinates_sweep).
 """
 import numba as nb
+import numpy as np
 
+from . import ON_ITS_OWN
 from .cells import face_neighbour
 from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
+from .reduction import add_parts
 
 #: columns of the ordinates' table (walk.ordinate_table): front share, side share (each),
 #: back share, the three parts' conditional mean cosines about e_o, and the side wedge's mean
@@ -47,100 +51,132 @@ from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
 PF, PS, PB, MF, MS, MB, MJ = range(7)
 
 
-@nb.njit(fastmath=True, cache=True, nogil=True)
-def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+@nb.njit(**ON_ITS_OWN)
+def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
+    """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
+    docstring; :func:`ordinates_sweep`). ``tallies`` = (reflected, transmitted, side escaped,
+    absorbed, packets sent) so far; returns them updated."""
+    refl, trans, side_out, absorbed, sent_packets = tallies
+    n0, n1, n2 = Th.shape
+    nt = table.shape[0]
+    th = Th[k, i, j]
+    dh = Dh[k, i, j]
+    sh = Sh[k, i, j]
+    for o in range(6):
+        w = W[o, k, i, j]
+        if w <= w_min:
+            continue
+        wa = Wa[o, k, i, j]
+        W[o, k, i, j] = 0.0
+        Wa[o, k, i, j] = 0.0
+        sent_packets += 1
+        sign = 1.0 - 2.0 * (o % 2)
+        phi[k, i, j] += w * inv_area
+        F[o // 2, k, i, j] += sign * wa * inv_area
+        a = wa / w
+        sent = w * th                    # what the sender's half step leaves
+        absorbed += w - sent
+        # the part that crosses to the next cell along e_o unscattered keeps its lobe
+        k2, i2, j2 = face_neighbour(k, i, j, o)
+        inside = k2 >= 0 and k2 < n0 and i2 >= 0 and i2 < n1 and j2 >= 0 and j2 < n2
+        S = sh * Sh[k2, i2, j2] if inside else sh
+        D = dh * Dh[k2, i2, j2] if inside else dh
+        e = sent * S
+        if e > 0.0:
+            if k2 < 0:
+                refl += e
+            elif k2 >= n0:
+                trans += e
+            elif not inside:
+                side_out += e
+            else:
+                th2 = Th[k2, i2, j2]
+                absorbed += e * (1.0 - th2)
+                e *= th2
+                W[o, k2, i2, j2] += e
+                Wa[o, k2, i2, j2] += e * a
+        es = sent - sent * S             # the part that scatters on the way
+        if es <= 0.0:
+            continue
+        # its lobe: the mean cosine of the whole decays by D (Eq. 12), the unscattered
+        # part keeps a, so the scattered part's is a (D - S) / (1 - S)
+        x = (a * (D - S) / (1.0 - S) + 1.0) * 0.5 * (nt - 1)
+        x = min(max(x, 0.0), nt - 1.0)
+        t = min(int(x), nt - 2)
+        lam = x - t
+        pf = table[t, PF] + lam * (table[t + 1, PF] - table[t, PF])
+        ps = table[t, PS] + lam * (table[t + 1, PS] - table[t, PS])
+        pb = max(1.0 - pf - 4.0 * ps, 0.0)
+        mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
+        mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
+        mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
+        for n in range(6):
+            if n == o:
+                e, q, m = es * pf, o, mf
+            elif n == (o ^ 1):
+                e, q, m = es * pb, n, -mb
+            else:
+                e, q, m = es * ps, n, mj
+            if e <= 0.0:
+                continue
+            k2, i2, j2 = face_neighbour(k, i, j, n)
+            if k2 < 0:
+                refl += e
+            elif k2 >= n0:
+                trans += e
+            elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
+                side_out += e
+            else:
+                th2 = Th[k2, i2, j2]
+                absorbed += e * (1.0 - th2)
+                e *= th2
+                W[q, k2, i2, j2] += e
+                Wa[q, k2, i2, j2] += e * m
+    return refl, trans, side_out, absorbed, sent_packets
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
+                    edges, row_work):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
     a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
     in place: what crosses to the next cell along its ordinate unscattered keeps its lobe, what
     scatters on the way is split to the six neighbours (module docstring). What leaves the
-    domain is tallied, as what the half steps absorb. Packets at or below ``w_min`` stay
-    pending. One thread. Returns the number of packets sent."""
+    domain is tallied (``tally``), as what the half steps absorb. Packets at or below ``w_min``
+    stay pending. Returns the number of packets sent.
+
+    On threads as a pipeline: the rows, in the sweep's order, are cut into groups at ``edges``
+    (int64 (groups + 1,), row positions in that order from 0 to n_u, one group per thread: see
+    walk.row_groups), and group g sweeps slice s while group g - 1 sweeps slice s + 1. A cell's
+    pending packets come from its six neighbours, each into its own ordinate; every cell a group
+    reads or writes in a step is one that the row-by-row order has already given all it gives
+    before that cell's turn (the group before has swept the slice, the slice before is done),
+    and no two groups write one ordinate of one cell in a step. So the fields are bitwise those
+    of one thread sweeping row by row, whatever the groups; the tallies are summed per row in a
+    fixed order (kernels/reduction.py). ``row_work`` (float64 (n_u,)) receives the packets each
+    row i sent, for the next sweep's groups."""
     n0, n1, n2 = Th.shape
-    nt = table.shape[0]
-    refl = trans = side_out = absorbed = 0.0
-    sent_packets = 0
-    for kk in range(n0):
-        k = kk if forward_d else n0 - 1 - kk
-        for ii in range(n1):
-            i = ii if forward_u else n1 - 1 - ii
-            for jj in range(n2):
-                j = jj if forward_v else n2 - 1 - jj
-                th = Th[k, i, j]
-                dh = Dh[k, i, j]
-                sh = Sh[k, i, j]
-                for o in range(6):
-                    w = W[o, k, i, j]
-                    if w <= w_min:
-                        continue
-                    wa = Wa[o, k, i, j]
-                    W[o, k, i, j] = 0.0
-                    Wa[o, k, i, j] = 0.0
-                    sent_packets += 1
-                    sign = 1.0 - 2.0 * (o % 2)
-                    phi[k, i, j] += w * inv_area
-                    F[o // 2, k, i, j] += sign * wa * inv_area
-                    a = wa / w
-                    sent = w * th                    # what the sender's half step leaves
-                    absorbed += w - sent
-                    # the part that crosses to the next cell along e_o unscattered keeps its lobe
-                    k2, i2, j2 = face_neighbour(k, i, j, o)
-                    inside = k2 >= 0 and k2 < n0 and i2 >= 0 and i2 < n1 and j2 >= 0 and j2 < n2
-                    S = sh * Sh[k2, i2, j2] if inside else sh
-                    D = dh * Dh[k2, i2, j2] if inside else dh
-                    e = sent * S
-                    if e > 0.0:
-                        if k2 < 0:
-                            refl += e
-                        elif k2 >= n0:
-                            trans += e
-                        elif not inside:
-                            side_out += e
-                        else:
-                            th2 = Th[k2, i2, j2]
-                            absorbed += e * (1.0 - th2)
-                            e *= th2
-                            W[o, k2, i2, j2] += e
-                            Wa[o, k2, i2, j2] += e * a
-                    es = sent - sent * S             # the part that scatters on the way
-                    if es <= 0.0:
-                        continue
-                    # its lobe: the mean cosine of the whole decays by D (Eq. 12), the unscattered
-                    # part keeps a, so the scattered part's is a (D - S) / (1 - S)
-                    x = (a * (D - S) / (1.0 - S) + 1.0) * 0.5 * (nt - 1)
-                    x = min(max(x, 0.0), nt - 1.0)
-                    t = min(int(x), nt - 2)
-                    lam = x - t
-                    pf = table[t, PF] + lam * (table[t + 1, PF] - table[t, PF])
-                    ps = table[t, PS] + lam * (table[t + 1, PS] - table[t, PS])
-                    pb = max(1.0 - pf - 4.0 * ps, 0.0)
-                    mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
-                    mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
-                    mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
-                    for n in range(6):
-                        if n == o:
-                            e, q, m = es * pf, o, mf
-                        elif n == (o ^ 1):
-                            e, q, m = es * pb, n, -mb
-                        else:
-                            e, q, m = es * ps, n, mj
-                        if e <= 0.0:
-                            continue
-                        k2, i2, j2 = face_neighbour(k, i, j, n)
-                        if k2 < 0:
-                            refl += e
-                        elif k2 >= n0:
-                            trans += e
-                        elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
-                            side_out += e
-                        else:
-                            th2 = Th[k2, i2, j2]
-                            absorbed += e * (1.0 - th2)
-                            e *= th2
-                            W[q, k2, i2, j2] += e
-                            Wa[q, k2, i2, j2] += e * m
-    tally[REFLECTED] += refl
-    tally[TRANSMITTED] += trans
-    tally[SIDE_ESCAPED] += side_out
-    tally[ABSORBED] += absorbed
-    return sent_packets
+    groups = edges.shape[0] - 1
+    part = np.zeros((5, n0 * n1))
+    for step in range(n0 + groups - 1):
+        for g in nb.prange(groups):
+            s = step - g
+            if s >= 0 and s < n0:
+                k = s if forward_d else n0 - 1 - s
+                for r in range(edges[g], edges[g + 1]):
+                    i = r if forward_u else n1 - 1 - r
+                    t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
+                    for jj in range(n2):
+                        j = jj if forward_v else n2 - 1 - jj
+                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, t)
+                    row = k * n1 + i
+                    part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
+                    part[4, row] = t[4]
+    add_parts(part[:4], tally)
+    sent = 0
+    row_work[:] = 0.0
+    for c in range(n0 * n1):
+        sent += np.int64(part[4, c])
+        row_work[c % n1] += part[4, c]
+    return sent
