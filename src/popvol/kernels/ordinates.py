@@ -51,6 +51,27 @@ from .reduction import add_parts
 PF, PS, PB, MF, MS, MB, MJ = range(7)
 
 
+@nb.njit(inline="always", cache=True)
+def _deliver(W, Wa, Th, q, k2, i2, j2, e, a, refl, trans, side_out, absorbed):
+    """Part ``e`` (anisotropy ``a``) into ordinate q of cell (k2, i2, j2), after that cell's half
+    step, or tallied where it leaves the domain: through the face k = 0 (reflected), the far
+    face (transmitted) or a lateral face (side). Returns the four tallies."""
+    n0, n1, n2 = Th.shape
+    if k2 < 0:
+        refl += e
+    elif k2 >= n0:
+        trans += e
+    elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
+        side_out += e
+    else:
+        th2 = Th[k2, i2, j2]
+        absorbed += e * (1.0 - th2)
+        e *= th2
+        W[q, k2, i2, j2] += e
+        Wa[q, k2, i2, j2] += e * a
+    return refl, trans, side_out, absorbed
+
+
 @nb.njit(**ON_ITS_OWN)
 def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
@@ -83,18 +104,8 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
         D = dh * Dh[k2, i2, j2] if inside else dh
         e = sent * S
         if e > 0.0:
-            if k2 < 0:
-                refl += e
-            elif k2 >= n0:
-                trans += e
-            elif not inside:
-                side_out += e
-            else:
-                th2 = Th[k2, i2, j2]
-                absorbed += e * (1.0 - th2)
-                e *= th2
-                W[o, k2, i2, j2] += e
-                Wa[o, k2, i2, j2] += e * a
+            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, o, k2, i2, j2, e, a, refl, trans, side_out,
+                                                       absorbed)
         es = sent - sent * S             # the part that scatters on the way
         if es <= 0.0:
             continue
@@ -120,18 +131,8 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
             if e <= 0.0:
                 continue
             k2, i2, j2 = face_neighbour(k, i, j, n)
-            if k2 < 0:
-                refl += e
-            elif k2 >= n0:
-                trans += e
-            elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
-                side_out += e
-            else:
-                th2 = Th[k2, i2, j2]
-                absorbed += e * (1.0 - th2)
-                e *= th2
-                W[q, k2, i2, j2] += e
-                Wa[q, k2, i2, j2] += e * m
+            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, q, k2, i2, j2, e, m, refl, trans, side_out,
+                                                       absorbed)
     return refl, trans, side_out, absorbed, sent_packets
 
 
