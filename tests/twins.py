@@ -129,63 +129,114 @@ def _ahead(x, axis, step):
     return padded[tuple(idx)]
 
 
-def _ordinate_parts(o, a, S, D):
-    """The parts of a packet of ordinate o with anisotropy a (float64 arrays) of which the share
-    S crosses its transfer unscattered and whose mean cosine decays by D over it: a list of
-    (ordinate, share, outgoing anisotropy) over the six directions n, the unscattered part first
-    (ordinate o, keeping a), then the scattered part, a_s = a (D - S) / (1 - S), split by the
-    cone partition about e_o (front m_front, back -m_back into o ^ 1, sides the wedge's mean
-    cosine, hg.side_wedge_mean_cosine, each into its own ordinate n)."""
+def _scattered_lobe(a, S, D):
+    """(a_s, the cone partition of HG_a_s about e_o): a_s = a (D - S) / (1 - S), the anisotropy
+    of the part of a packet that scatters on a transfer whose no-scatter share is S and whose
+    decay is D; the partition as (front share, side share (each), back share, m_front, m_back,
+    m_wedge) of popvol.hg (float64 arrays)."""
     scattered = 1.0 - S
     a_s = np.clip(np.divide(a * (D - S), scattered, out=np.zeros(np.shape(a)), where=scattered > 0), -1.0, 1.0)
     fr, sd, bk = hg.split_fractions(a_s)
     mf, _, mb = hg.conditional_mean_cosines(a_s)
-    mj = hg.side_wedge_mean_cosine(a_s)
-    parts = [(o, o, S, a)]
-    for n in range(6):
-        share, m = ((fr, mf) if n == o else (bk, -mb) if n == o ^ 1 else (sd, mj))
-        parts.append((n, n, scattered * share, m))
-    return parts
+    return a_s, (fr, sd, bk, mf, mb, hg.side_wedge_mean_cosine(a_s))
 
 
-def ordinates_step(W, Wa, Th, Sh, Dh, inv_area, phi, F, tally):
+def _cone_parts(o, cone):
+    """[(ordinate n, share, outgoing anisotropy)] of the cone partition about e_o (front on in
+    o with m_front, back into o ^ 1 with -m_back, each side into its own ordinate n with the
+    wedge's mean cosine)."""
+    fr, sd, bk, mf, mb, mj = cone
+    return [(n,) + ((fr, mf) if n == o else (bk, -mb) if n == o ^ 1 else (sd, mj)) for n in range(6)]
+
+
+def _scattered_in(W, Wa, o, a_s, cone, handover, diffusive, Q, at=None):
+    """Light that scattered on its way into a cell along e_o (slot 6 + o of W, Wa; power x, moment
+    x a_s): to Q where |a_s| < handover * diffusive, else split by the cone partition about e_o
+    into the cell's own ordinates. Whole arrays, or the one cell ``at`` (a tuple); in place."""
+    idx = (slice(None),) * 3 if at is None else at
+    x = W[(6 + o,) + idx].copy()
+    if handover > 0:
+        leave = np.abs(a_s) < handover * diffusive[idx]
+        Q[(0,) + idx] += np.where(leave, x, 0.0)
+        Q[(1,) + idx] += np.where(leave, (o < 2) * (1.0 - 2.0 * (o % 2)) * a_s * x, 0.0)
+        x = np.where(leave, 0.0, x)
+    W[(6 + o,) + idx] = 0.0
+    Wa[(6 + o,) + idx] = 0.0
+    for n, share, m in _cone_parts(o, cone):
+        W[(n,) + idx] += x * share
+        Wa[(n,) + idx] += x * share * m
+
+
+def ordinates_step(W, Wa, Th, Sh, Dh, inv_area, phi, F, tally, handover=-1.0, diffusive=None, Q=None):
     """One iteration of the six-ordinate Jacobi wavefront, every pending packet sent one cell:
     the fixed point that the kernel's sweeps (kernels.ordinates.ordinates_sweep) reach but for
     the order in which packets merge (tests/test_ordinates.py).
-    W, Wa (6, n_d, n_u, n_v): power and power times anisotropy pending in ordinate o = 0..5
-    (+d, -d, +u, -u, +v, -v) of each cell. A packet of lobe HG_a about e_o crosses its transfer
-    to the neighbour along e_o unscattered with the share S = Sh[src] Sh[dst] and keeps a; the
-    rest scatters with a_s = a (D - S) / (1 - S), D = Dh[src] Dh[dst], and splits by the cone
-    partition about e_o (:func:`_ordinate_parts`); every part is moved one cell (Th of sender
-    and receiver). Accumulates phi and F (3, ...), the first moment in the domain's frame.
-    Returns the next (W, Wa), float64."""
+    W, Wa (12, n_d, n_u, n_v): power and power times anisotropy pending in ordinate o = 0..5
+    (+d, -d, +u, -u, +v, -v) of each cell, at its centre, then (slot 6 + o) the light that
+    scattered in the cell on its way in along e_o, with its a_s. First that light goes to Q
+    where |a_s| < handover * diffusive, or splits by the cone partition about e_o into the
+    cell's ordinates. Then a packet of lobe HG_a about e_o leaves through its sender's half
+    step Th[src]; of that, Sh[src] Sh[dst] crosses to the neighbour dst along e_o unscattered
+    (Th[dst]) and keeps a; 1 - Sh[src] scatters in the sender's half and goes to Q or splits
+    from there (parts moved one cell, Th of sender and neighbour); Sh[src] (1 - Sh[dst])
+    scatters in the receiver's half and crosses into it (Th[dst]), into its slot 6 + o; both
+    with a_s = a (D - S) / (1 - S) (D = Dh[src] Dh[dst], S = Sh[src] Sh[dst]). Accumulates phi
+    and F (3, ...), the first moment in the domain's frame. Returns the next (W, Wa), float64."""
     Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
-    W, Wa = np.asarray(W, np.float64), np.asarray(Wa, np.float64)
+    W, Wa = np.array(W, np.float64), np.array(Wa, np.float64)
+    for o in range(6):
+        a_s = np.clip(np.divide(Wa[6 + o], W[6 + o], out=np.zeros(Th.shape), where=W[6 + o] > 0), -1.0, 1.0)
+        _scattered_in(W, Wa, o, a_s, _cone_lobe(a_s), handover, diffusive, Q)
     W_new, Wa_new = np.zeros(W.shape), np.zeros(W.shape)
     ones = np.ones(Th.shape)
     for o in range(6):
-        sign = 1.0 - 2.0 * (o % 2)
+        axis, step = o // 2, 1 - 2 * (o % 2)
+        sign = float(step)
         phi += W[o] * inv_area
-        F[o // 2] += sign * Wa[o] * inv_area
+        F[axis] += sign * Wa[o] * inv_area
         a = np.clip(np.divide(Wa[o], W[o], out=np.zeros(W[o].shape), where=W[o] > 0), -1.0, 1.0)
-        S = Sh * _ahead(Sh, o // 2, 1 - 2 * (o % 2))
-        D = Dh * _ahead(Dh, o // 2, 1 - 2 * (o % 2))
-        for n, q, share, m in _ordinate_parts(o, a, S, D):
-            axis, step = n // 2, 1 - 2 * (n % 2)
-            slot = (TRANSMITTED if step > 0 else REFLECTED) if axis == 0 else SIDE_ESCAPED
-            e_in, ea_in = _move(W[o] * share, m, Th, ones, axis, step, False, tally, slot)
+        Sh_dst = _ahead(Sh, axis, step)
+        S = Sh * Sh_dst
+        a_s, cone = _scattered_lobe(a, S, Dh * _ahead(Dh, axis, step))
+
+        def send(e, m, n, q):
+            ax, st = n // 2, 1 - 2 * (n % 2)
+            slot = (TRANSMITTED if st > 0 else REFLECTED) if ax == 0 else SIDE_ESCAPED
+            e_in, ea_in = _move(e, m, Th, ones, ax, st, False, tally, slot)
             W_new[q] += e_in
             Wa_new[q] += ea_in
+
+        send(W[o] * S, a, o, o)                                   # unscattered, on along e_o
+        e1 = W[o] * (1.0 - Sh)                                    # scattered in the sender's half
+        if handover > 0:
+            leave = np.abs(a_s) < handover * diffusive
+            tally[ABSORBED] += np.sum(np.where(leave, e1 * (1.0 - Th), 0.0))     # its sender's half step
+            Q[0] += np.where(leave, e1 * Th, 0.0)
+            Q[1] += np.where(leave, sign * (axis == 0) * a_s * e1 * Th, 0.0)
+            e1 = np.where(leave, 0.0, e1)
+        for n, share, m in _cone_parts(o, cone):
+            send(e1 * share, m, n, n)
+        # scattered in the receiver's half: into it (both half steps), its slot 6 + o
+        send(W[o] * Sh * (1.0 - Sh_dst), a_s, o, 6 + o)
     return W_new, Wa_new
 
 
-def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+def _cone_lobe(a_s):
+    """The cone partition of HG_a_s (:func:`_scattered_lobe`'s second value)."""
+    fr, sd, bk = hg.split_fractions(a_s)
+    mf, _, mb = hg.conditional_mean_cosines(a_s)
+    return fr, sd, bk, mf, mb, hg.side_wedge_mean_cosine(a_s)
+
+
+def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
+                    handover=-1.0, diffusive=None, Q=None):
     """One Gauss-Seidel sweep of the six-ordinate walk (twin of kernels.ordinates.ordinates_sweep),
     cell by cell, in place, in float64. Cells in order of k, i, j (each increasing if its
-    ``forward_*``); at each cell the ordinates o = 0..5 (+d, -d, +u, -u, +v, -v) in turn: a packet
-    above ``w_min`` is taken, visits (phi, F), and is sent as ordinates_step's (exact HG shares),
-    each part moved one cell into its ordinate's pending packet there (Th of sender and
-    receiver), what leaves the grid tallied. Returns the number of packets sent."""
+    ``forward_*``); at each cell first the light that scattered on its way in (slots 6..11, as
+    ordinates_step's), then the ordinates o = 0..5 (+d, -d, +u, -u, +v, -v) in turn: a packet
+    above ``w_min`` is taken, visits (phi, F), and is sent as ordinates_step's (exact HG shares):
+    its parts moved into their pending slots, what leaves the grid tallied, what is handed over
+    added to Q. Returns the number of packets sent."""
     n0, n1, n2 = Th.shape
     Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
     sent_packets = 0
@@ -198,9 +249,27 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
         c[n // 2] += 1 - 2 * (n % 2)
         return tuple(c)
 
+    def deliver(e, m, q, dst):
+        if dst[0] < 0:
+            tally[REFLECTED] += e
+        elif dst[0] >= n0:
+            tally[TRANSMITTED] += e
+        elif not inside(dst):
+            tally[SIDE_ESCAPED] += e
+        else:
+            th2 = Th[dst]
+            tally[ABSORBED] += e * (1.0 - th2)
+            W[(q,) + dst] += e * th2
+            Wa[(q,) + dst] += e * th2 * m
+
     for k in (range(n0) if forward_d else range(n0 - 1, -1, -1)):
         for i in (range(n1) if forward_u else range(n1 - 1, -1, -1)):
             for j in (range(n2) if forward_v else range(n2 - 1, -1, -1)):
+                for o in range(6):
+                    x = float(W[6 + o, k, i, j])
+                    if x > 0.0:
+                        a_s = np.array(np.clip(Wa[6 + o, k, i, j] / x, -1.0, 1.0))
+                        _scattered_in(W, Wa, o, a_s, _cone_lobe(a_s), handover, diffusive, Q, at=(k, i, j))
                 for o in range(6):
                     w = float(W[o, k, i, j])
                     if w <= w_min:
@@ -208,29 +277,29 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
                     wa = float(Wa[o, k, i, j])
                     W[o, k, i, j] = Wa[o, k, i, j] = 0.0
                     sent_packets += 1
+                    sign = 1.0 - 2.0 * (o % 2)
                     phi[k, i, j] += w * inv_area
-                    F[o // 2, k, i, j] += (1.0 - 2.0 * (o % 2)) * wa * inv_area
+                    F[o // 2, k, i, j] += sign * wa * inv_area
                     ahead = neighbour((k, i, j), o)
-                    S = Sh[k, i, j] * (Sh[ahead] if inside(ahead) else 1.0)
+                    sh, sh2 = Sh[k, i, j], (Sh[ahead] if inside(ahead) else 1.0)
                     D = Dh[k, i, j] * (Dh[ahead] if inside(ahead) else 1.0)
+                    a = np.clip(wa / w, -1.0, 1.0)
                     sent = w * Th[k, i, j]
                     tally[ABSORBED] += w - sent
-                    parts = _ordinate_parts(o, np.array([np.clip(wa / w, -1.0, 1.0)]), np.array([S]),
-                                            np.array([D]))
-                    for n, q, share, m in parts:
-                        e, m = sent * float(np.ravel(share)[0]), float(np.ravel(m)[0])
-                        dst = neighbour((k, i, j), n)
-                        if dst[0] < 0:
-                            tally[REFLECTED] += e
-                        elif dst[0] >= n0:
-                            tally[TRANSMITTED] += e
-                        elif not inside(dst):
-                            tally[SIDE_ESCAPED] += e
+                    deliver(sent * sh * sh2, a, o, ahead)
+                    a_s, cone = _scattered_lobe(np.array([a]), np.array([sh * sh2]), np.array([D]))
+                    a_s = float(a_s[0])
+                    e = sent * (1.0 - sh)                      # scattered in the sender's half
+                    if e > 0.0:
+                        if handover > 0 and abs(a_s) < handover * diffusive[k, i, j]:
+                            Q[0, k, i, j] += e
+                            Q[1, k, i, j] += sign * (o < 2) * a_s * e
                         else:
-                            th2 = Th[dst]
-                            tally[ABSORBED] += e * (1.0 - th2)
-                            W[(q,) + dst] += e * th2
-                            Wa[(q,) + dst] += e * th2 * m
+                            for n, share, m in _cone_parts(o, cone):
+                                deliver(e * float(np.ravel(share)[0]), float(np.ravel(m)[0]), n,
+                                        neighbour((k, i, j), n))
+                    if inside(ahead):                          # scattered in the receiver's half
+                        deliver(sent * sh * (1.0 - sh2), a_s, 6 + o, ahead)
     return sent_packets
 
 

@@ -118,8 +118,8 @@ KNOBS: tuple[Knob, ...] = (
          "each iteration moves every packet one cell), the Jacobi wavefront with each cell's light "
          "kept in 17 fixed anisotropy bins instead of one merged lobe (linear in the light, so the "
          "answer does not depend on the schedule; 5-40x slower), or Gauss-Seidel sweeps with one "
-         "lobe per lattice direction, so that light sent sideways keeps going sideways; a sun's "
-         "six-ordinate walk carries all its light, with no hand-over (needs `rule = \"moment\"`; "
+         "lobe per lattice direction, in which light keeps its direction until it scatters, so that "
+         "light scattered sideways keeps going sideways (needs `rule = \"moment\"`; "
          "docs/METHOD.md, \"Six ordinates\"). Point lights always sweep.",
          experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",

@@ -72,7 +72,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
         # the unscattered light crosses the true density (docs/METHOD.md, "Optically thick voxels")
         replace_direct(walk, domain.direct_fluence(domain.resample(medium, channel)[0]))
     ds = DomainSolution(light, domain, walk, t1 - t0, channel)
-    if walk.handed is not None:         # the diffusion stage (not for a sun's six-ordinate walk)
+    if walk.handed is not None:         # the diffusion stage
         t2 = time.perf_counter()
         hand = domain.hand_over(walk, optics, transport, method, channel)
         x0 = None
@@ -130,12 +130,14 @@ def run_jobs(fn, cells: list[int], workers: int) -> list:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
+def ordinate_fields(ds, medium, needed, outs, phid, flux) -> None:
     """The six-ordinate walk's fields on the medium's grid (docs/METHOD.md, "Six ordinates"):
     its unscattered light as the walk's lobe (outs = phi, phia, phi_dir, all set to phi_dir,
     a delta along the light) and the rest, phi - phi_dir (at least 0) with first moment
-    F - phi_dir d, as one lobe about its own moment in ``phid`` and ``flux`` (float32 (3, nx,
-    ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1."""
+    F - phi_dir d, plus what its diffusion stage holds (phi_d, J), as one lobe about its own
+    moment in ``phid`` and ``flux`` (float32 (3, nx, ny, nz), world frame), which the renderer
+    lights with the diffuse lobe capped at 1. ``ds``: the light's DomainSolution."""
+    walk, dom = ds.result, ds.domain
     direct = walk.direct if walk.direct is not None else np.zeros_like(walk.phi)
     rest = np.maximum(walk.phi - direct, 0.0)
     F = walk.flux.copy()
@@ -145,6 +147,15 @@ def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
                     medium.voxel_size, (outs[2], phid, flux[0], flux[1], flux[2]), needed)
     outs[0][...] = outs[2]
     outs[1][...] = outs[2]
+    d, grid = walk.diffusion, ds.diffusion_grid
+    if d is not None:
+        J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
+        diffuse = tuple(np.zeros(medium.shape, np.float32) for _ in range(4))
+        domain_to_world((d.phi, J[0], J[1], J[2]), grid.frame, grid.origin, d.h, medium.origin,
+                        medium.voxel_size, diffuse, needed)
+        phid += diffuse[0]
+        for c in range(3):
+            flux[c] += diffuse[c + 1]
 
 
 def warm_domains(warm, scene) -> tuple[dict, str]:
@@ -306,8 +317,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
         ds.light_index = i
         t0 = time.perf_counter()
         if ds.result.flux is not None:
-            ordinate_fields(ds.result, ds.domain, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]),
-                            phid[i, ch], flux[i, ch])
+            ordinate_fields(ds, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]), phid[i, ch], flux[i, ch])
             lobe_cap[i] = 1.0
             return ds, time.perf_counter() - t0
         d, grid = ds.result.diffusion, ds.diffusion_grid

@@ -257,21 +257,25 @@ def row_groups(row_work: np.ndarray, visits: float, forward_u: bool, lanes: int)
     return np.unique(np.concatenate(([0], np.clip(cuts, 1, n1 - 1), [n1]))).astype(np.int64)
 
 
-def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
-                   ) -> tuple[int, float, float, int]:
+def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
+                   handover=-1.0, diffusive=None, Q=None) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
-    domain's shape, :func:`scatter_factor`), by thresholded
+    domain's shape, :func:`scatter_factor`; ``handover``, ``diffusive``, ``Q`` as
+    :func:`handover_arrays` gives them: scattered light whose lobe has spread leaves for Q, and
+    what is still pending in the diffusion region at the end goes there too), by thresholded
     Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
     in the mean pending power): the injected light enters ordinate +d; the sweeps alternate +d
     / -d every sweep, the order along u every second and along v every fourth. Returns
     (sweeps, power in flight, power the injection's half step absorbed, packets sent).
     Accumulates into phi, flux (float32 (3,) + shape, the first moment in the domain's frame)
-    and tally."""
+    and tally. The pending state W, Wa is float32 (12,) + shape: the six ordinates, then per
+    ordinate o the light that scattered in the cell's half of its way in along e_o
+    (kernels/ordinates.py)."""
     shape = Th.shape
-    check_memory(2 * 6 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates')",
-                 f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment)")
+    check_memory(2 * 12 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates')",
+                 f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment, twice)")
     table = ordinate_table()
-    W = np.zeros((6,) + shape, np.float32)
+    W = np.zeros((12,) + shape, np.float32)
     Wa = np.zeros_like(W)
     # the injected light crosses half a cell to the first centres (a0 decayed by Dh[0])
     W[0, 0] = injection * Th[0]
@@ -286,10 +290,19 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         # the rows cut into one group per thread by the work each row did in the sweep before
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
-                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work)
-        return K.total_energy(W.reshape((6 * shape[0],) + shape[1:])), sent
+                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, handover, diffusive, Q)
+        return K.total_energy(W.reshape((12 * shape[0],) + shape[1:])), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * int(np.prod(shape)), injected, progress)
+    if handover > 0:
+        # what is still pending in the diffusion region (at cell centres, after the receivers'
+        # half steps) goes to the diffusion stage, as the one-lobe sweeps' hand_over_pending
+        region = diffusive > 0
+        Q[0] += np.where(region, W.sum(axis=0, dtype=np.float64), 0.0).astype(np.float32)
+        moment = Wa[0].astype(np.float64) - Wa[1] + Wa[6] - Wa[7]          # along d
+        Q[1] += np.where(region, moment, 0.0).astype(np.float32)
+        W[:, region] = 0.0
+        in_flight = float(np.sum(W, dtype=np.float64))
     return it, in_flight, absorbed, sent
 
 
@@ -312,8 +325,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         rule: "moment" or "paper"; solver: "sweep", "jacobi", "binned" (the Jacobi wavefront
             with each cell's light in fixed anisotropy bins, linear in the light:
             :func:`walk_binned`) or "ordinates" (sweeps with one lobe per lattice direction:
-            :func:`walk_ordinates`; rule "moment" only, no hand-over; the
-            result's ``flux`` holds the fluence's first moment vector).
+            :func:`walk_ordinates`; rule "moment" only; the result's ``flux`` holds the
+            fluence's first moment vector).
         tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
             (0 = automatic). With ``handover`` and the sweep or binned solver, what is then
             still pending in the diffusion region is handed over (:func:`hand_over_pending`).
@@ -362,14 +375,14 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             if progress is not None and it % 16 == 0:
                 progress(it, in_flight / budget.injected)
     elif solver == "ordinates":
-        if handover is not None or periodic or not moment:
-            raise ValueError("the six-ordinate walk has no hand-over, periodic faces or 'paper' rule")
+        if periodic or not moment:
+            raise ValueError("the six-ordinate walk has no periodic faces or 'paper' rule")
         if scatter is None:
             raise ValueError("the six-ordinate walk needs scatter (walk.scatter_factor)")
         flux = np.zeros((3,) + shape, np.float32)
         Sh = np.ascontiguousarray(scatter, np.float32)
         it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
-                                                              tally, target, cap, progress)
+                                                              tally, target, cap, progress, eps, diffusive, Q)
         phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,

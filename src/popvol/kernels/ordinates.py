@@ -7,23 +7,30 @@ sideways forgets it and lateral transport is a random walk of step h, however th
 (docs/ACCURACY_NOTES.md, the narrow beam). Here a cell holds one pending packet per lattice
 direction e_o (o = 0..5: +d, -d, +u, -u, +v, -v; o ^ 1 is the opposite of o):
 
-  W, Wa  float32 (6, n_d, n_u, n_v): power [W] pending in ordinate o of each cell, at its
+  W, Wa  float32 (12, n_d, n_u, n_v): power [W] pending in ordinate o of each cell, at its
          centre (after the receiver's half step), and power times the lobe's anisotropy
-         about e_o.
+         about e_o; then, in slot 6 + o, the light that scattered in the cell's half of its
+         way in along e_o, and its power times a_s (below).
 
-A packet is sent across one transfer to the neighbour along its own e_o (docs/METHOD.md, "Six
+A packet is sent across one transfer to the neighbour c along its own e_o (docs/METHOD.md, "Six
 ordinates"). The share S = Sh[s] Sh[c] of it that crosses unscattered (Sh = exp(-sigma_s h / 2),
 the half-step no-scatter transmittance of sender s and receiver c) goes on in ordinate o and
 keeps its lobe: only scattering changes a direction, so a lobe is not split again at every
-cell. The rest, 1 - S, scattered on the way, has the anisotropy a_s = a (D - S) / (1 - S) (D =
-Dh[s] Dh[c], so the mean cosine of the whole decays as Eq. 12) and splits by the cone
-partition about e_o (supplement Eq. 2, 4, 7; the shares of docs/METHOD.md Eq. 6): its front
-part goes on along e_o in ordinate o with anisotropy m_front (Eq. 8), its back part into
-ordinate o ^ 1 of the cell behind with |m_back|, and the side part toward the neighbour along
-e_n into ordinate n with the mean cosine, about e_n, of the side wedge of HG_a_s about e_o
-(``table`` column MJ). The side part's drift along e_o (m_side) is not carried. Every part is
-attenuated by Th[s] Th[n] (Eq. 11). So light keeps its direction until it scatters, and light
-that scatters sideways keeps going sideways.
+cell. The rest has the anisotropy a_s = a (D - S) / (1 - S) (D = Dh[s] Dh[c], so the mean
+cosine of the whole decays as Eq. 12). Its share 1 - Sh[s] scatters in the sender's half and
+leaves from there; the share Sh[s] (1 - Sh[c]) scatters in the receiver's half, crosses into
+it (Th[c]) and waits in its slot 6 + o until c is visited, then leaves from c. Where it
+leaves from, it goes to the diffusion stage if |a_s| < handover * diffusive[cell] (its power and
+moment along d into Q, docs/METHOD.md "Hand-over"), or splits by the cone partition about e_o
+(supplement Eq. 2, 4, 7; the shares of docs/METHOD.md Eq. 6): its front part goes on along e_o
+in ordinate o with anisotropy m_front (Eq. 8), its back part into ordinate o ^ 1 with
+|m_back|, and the side part toward e_n into ordinate n with the mean cosine, about e_n, of the
+side wedge of HG_a_s about e_o (``table`` column MJ); from the sender to its neighbours, from
+the receiver into its own ordinates. The side part's drift along e_o (m_side) is not carried.
+Every transfer is attenuated by the half steps Th of both cells (Eq. 11). So light keeps its
+direction until it scatters, light that scatters sideways keeps going sideways, and light
+that scatters just inside a lit face leaves from the face's first cell. Each slot is written
+by one neighbour only (c's slot 6 + o by c - e_o).
 
 The packets are sent by thresholded Gauss-Seidel sweeps (:func:`ordinates_sweep`), cell by
 cell in place, as the one-lobe walk's sweeps are (kernels/propagation.py): a part sent to a
@@ -72,17 +79,60 @@ def _deliver(W, Wa, Th, q, k2, i2, j2, e, a, refl, trans, side_out, absorbed):
     return refl, trans, side_out, absorbed
 
 
+@nb.njit(inline="always", cache=True)
+def _cone(table, a):
+    """The cone partition of HG_a about its axis, interpolated in ``table`` (walk.ordinate_table):
+    (front share, side share (each), back share, m_front, m_back, m_wedge)."""
+    nt = table.shape[0]
+    x = (a + 1.0) * 0.5 * (nt - 1)
+    x = min(max(x, 0.0), nt - 1.0)
+    t = min(int(x), nt - 2)
+    lam = x - t
+    pf = table[t, PF] + lam * (table[t + 1, PF] - table[t, PF])
+    ps = table[t, PS] + lam * (table[t + 1, PS] - table[t, PS])
+    pb = max(1.0 - pf - 4.0 * ps, 0.0)
+    mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
+    mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
+    mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
+    return pf, ps, pb, mf, mb, mj
+
+
 @nb.njit(**ON_ITS_OWN)
-def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
+def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies, handover, diffusive, Q):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
     docstring; :func:`ordinates_sweep`). ``tallies`` = (reflected, transmitted, side escaped,
-    absorbed, packets sent) so far; returns them updated."""
+    absorbed, packets sent) so far; returns them updated. With ``handover`` > 0, scattered light
+    whose |a_s| < handover * diffusive[cell] goes to Q (power, moment along d) instead."""
     refl, trans, side_out, absorbed, sent_packets = tallies
     n0, n1, n2 = Th.shape
-    nt = table.shape[0]
     th = Th[k, i, j]
     dh = Dh[k, i, j]
     sh = Sh[k, i, j]
+    for o in range(6):
+        # light that scattered in this cell's half of its way in along e_o (slot 6 + o): to the
+        # diffusion stage, or split by the cone partition about e_o into this cell's ordinates
+        x = W[6 + o, k, i, j]
+        if x <= 0.0:
+            continue
+        xa = Wa[6 + o, k, i, j]
+        W[6 + o, k, i, j] = 0.0
+        Wa[6 + o, k, i, j] = 0.0
+        a_s = xa / x
+        if handover > 0.0 and abs(a_s) < handover * diffusive[k, i, j]:
+            Q[0, k, i, j] += x
+            if o < 2:
+                Q[1, k, i, j] += (1.0 - 2.0 * o) * xa
+            continue
+        pf, ps, pb, mf, mb, mj = _cone(table, a_s)
+        for n in range(6):
+            if n == o:
+                e, m = x * pf, mf
+            elif n == (o ^ 1):
+                e, m = x * pb, -mb
+            else:
+                e, m = x * ps, mj
+            W[n, k, i, j] += e
+            Wa[n, k, i, j] += e * m
     for o in range(6):
         w = W[o, k, i, j]
         if w <= w_min:
@@ -106,39 +156,49 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
         if e > 0.0:
             refl, trans, side_out, absorbed = _deliver(W, Wa, Th, o, k2, i2, j2, e, a, refl, trans, side_out,
                                                        absorbed)
-        es = sent - sent * S             # the part that scatters on the way
-        if es <= 0.0:
+        if S >= 1.0:                     # nothing scatters on the way
             continue
-        # its lobe: the mean cosine of the whole decays by D (Eq. 12), the unscattered
-        # part keeps a, so the scattered part's is a (D - S) / (1 - S)
-        x = (a * (D - S) / (1.0 - S) + 1.0) * 0.5 * (nt - 1)
-        x = min(max(x, 0.0), nt - 1.0)
-        t = min(int(x), nt - 2)
-        lam = x - t
-        pf = table[t, PF] + lam * (table[t + 1, PF] - table[t, PF])
-        ps = table[t, PS] + lam * (table[t + 1, PS] - table[t, PS])
-        pb = max(1.0 - pf - 4.0 * ps, 0.0)
-        mf = table[t, MF] + lam * (table[t + 1, MF] - table[t, MF])
-        mb = table[t, MB] + lam * (table[t + 1, MB] - table[t, MB])
-        mj = table[t, MJ] + lam * (table[t + 1, MJ] - table[t, MJ])
-        for n in range(6):
-            if n == o:
-                e, q, m = es * pf, o, mf
-            elif n == (o ^ 1):
-                e, q, m = es * pb, n, -mb
+        # the part that scatters: its lobe's mean cosine a_s = a (D - S) / (1 - S), so that the
+        # whole decays by D (Eq. 12) while the unscattered part keeps a
+        a_s = a * (D - S) / (1.0 - S)
+        # it scatters in the sender's half (1 - Sh[s]): handed over, or split from here ...
+        es = sent * (1.0 - sh)
+        if es > 0.0:
+            if handover > 0.0 and abs(a_s) < handover * diffusive[k, i, j]:
+                # spread where one cell resolves no drift: to the diffusion stage (docs/METHOD.md,
+                # "Hand-over"), with its moment along d
+                Q[0, k, i, j] += es
+                if o < 2:
+                    Q[1, k, i, j] += sign * a_s * es
             else:
-                e, q, m = es * ps, n, mj
-            if e <= 0.0:
-                continue
-            k2, i2, j2 = face_neighbour(k, i, j, n)
-            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, q, k2, i2, j2, e, m, refl, trans, side_out,
-                                                       absorbed)
+                pf, ps, pb, mf, mb, mj = _cone(table, a_s)
+                for n in range(6):
+                    if n == o:
+                        e, q, m = es * pf, o, mf
+                    elif n == (o ^ 1):
+                        e, q, m = es * pb, n, -mb
+                    else:
+                        e, q, m = es * ps, n, mj
+                    if e <= 0.0:
+                        continue
+                    k3, i3, j3 = face_neighbour(k, i, j, n)
+                    refl, trans, side_out, absorbed = _deliver(W, Wa, Th, q, k3, i3, j3, e, m, refl, trans,
+                                                               side_out, absorbed)
+        # ... or in the receiver's (Sh[s] (1 - Sh[c])): it crosses into the receiver and waits
+        # there in slot 6 + o, which only this cell writes
+        if inside:
+            thc = Th[k2, i2, j2]
+            es = sent * sh * (1.0 - Sh[k2, i2, j2])
+            absorbed += es * (1.0 - thc)
+            es *= thc
+            W[6 + o, k2, i2, j2] += es
+            Wa[6 + o, k2, i2, j2] += es * a_s
     return refl, trans, side_out, absorbed, sent_packets
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    edges, row_work):
+                    edges, row_work, handover, diffusive, Q):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
     a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
@@ -170,7 +230,7 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
                     t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
-                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, t)
+                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, t, handover, diffusive, Q)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
