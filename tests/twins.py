@@ -136,9 +136,7 @@ def _scattered_lobe(a, S, D):
     m_wedge) of popvol.hg (float64 arrays)."""
     scattered = 1.0 - S
     a_s = np.clip(np.divide(a * (D - S), scattered, out=np.zeros(np.shape(a)), where=scattered > 0), -1.0, 1.0)
-    fr, sd, bk = hg.split_fractions(a_s)
-    mf, _, mb = hg.conditional_mean_cosines(a_s)
-    return a_s, (fr, sd, bk, mf, mb, hg.side_wedge_mean_cosine(a_s))
+    return a_s, _cone_lobe(a_s)
 
 
 def _cone_parts(o, cone):

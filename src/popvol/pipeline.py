@@ -130,6 +130,14 @@ def run_jobs(fn, cells: list[int], workers: int) -> list:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+def diffusion_fields(d, grid) -> tuple:
+    """A diffusion stage's fields for the medium's grid: (phi_d, J_x, J_y, J_z), float32 arrays
+    of its grid's shape, the flux in world axes (component c of J = sum over the grid axes a of
+    frame[a, c] J_a)."""
+    J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
+    return d.phi, J[0], J[1], J[2]
+
+
 def ordinate_fields(ds, medium, needed, outs, phid, flux) -> None:
     """The six-ordinate walk's fields on the medium's grid (docs/METHOD.md, "Six ordinates"):
     its unscattered light as the walk's lobe (outs = phi, phia, phi_dir, all set to phi_dir,
@@ -149,9 +157,8 @@ def ordinate_fields(ds, medium, needed, outs, phid, flux) -> None:
     outs[1][...] = outs[2]
     d, grid = walk.diffusion, ds.diffusion_grid
     if d is not None:
-        J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
         diffuse = tuple(np.zeros(medium.shape, np.float32) for _ in range(4))
-        domain_to_world((d.phi, J[0], J[1], J[2]), grid.frame, grid.origin, d.h, medium.origin,
+        domain_to_world(diffusion_fields(d, grid), grid.frame, grid.origin, d.h, medium.origin,
                         medium.voxel_size, diffuse, needed)
         phid += diffuse[0]
         for c in range(3):
@@ -323,10 +330,8 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
         d, grid = ds.result.diffusion, ds.diffusion_grid
         diffuse = ()                    # (field, out) pairs of the diffusion stage
         if d is not None:
-            # world component c of J = sum over the grid axes a of frame[a, c] J_a
-            J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
-            diffuse = tuple(zip((d.phi, J[0], J[1], J[2]), (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1],
-                                                             flux[i, ch, 2])))
+            diffuse = tuple(zip(diffusion_fields(d, grid), (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1],
+                                                            flux[i, ch, 2])))
         if grid is ds.domain and d.h == ds.domain.h and d.phi.shape == tuple(ds.domain.shape):
             # the diffusion stage ran on the walk's own cells: one pass maps both
             ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]), diffuse)

@@ -97,6 +97,29 @@ def _cone(table, a):
     return pf, ps, pb, mf, mb, mj
 
 
+@nb.njit(inline="always", cache=True)
+def _part(o, n, cone):
+    """(share, outgoing anisotropy) of the part of a lobe about e_o that goes into ordinate n,
+    from its cone partition ``cone`` (:func:`_cone`): the front part on in o with m_front, the
+    back part into o ^ 1 with -m_back, each side part into its own ordinate with m_wedge."""
+    pf, ps, pb, mf, mb, mj = cone
+    if n == o:
+        return pf, mf
+    if n == (o ^ 1):
+        return pb, -mb
+    return ps, mj
+
+
+@nb.njit(inline="always", cache=True)
+def _to_diffusion(Q, k, i, j, o, e, ea):
+    """Scattered light of power ``e`` and moment ``ea`` (power times its anisotropy about e_o)
+    handed over to the diffusion stage at cell (k, i, j): its power into Q[0], its moment along
+    d into Q[1]."""
+    Q[0, k, i, j] += e
+    if o < 2:
+        Q[1, k, i, j] += (1.0 - 2.0 * o) * ea
+
+
 @nb.njit(**ON_ITS_OWN)
 def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies, handover, diffusive, Q):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
@@ -119,20 +142,13 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies, h
         Wa[6 + o, k, i, j] = 0.0
         a_s = xa / x
         if handover > 0.0 and abs(a_s) < handover * diffusive[k, i, j]:
-            Q[0, k, i, j] += x
-            if o < 2:
-                Q[1, k, i, j] += (1.0 - 2.0 * o) * xa
+            _to_diffusion(Q, k, i, j, o, x, xa)
             continue
-        pf, ps, pb, mf, mb, mj = _cone(table, a_s)
+        cone = _cone(table, a_s)
         for n in range(6):
-            if n == o:
-                e, m = x * pf, mf
-            elif n == (o ^ 1):
-                e, m = x * pb, -mb
-            else:
-                e, m = x * ps, mj
-            W[n, k, i, j] += e
-            Wa[n, k, i, j] += e * m
+            share, m = _part(o, n, cone)
+            W[n, k, i, j] += x * share
+            Wa[n, k, i, j] += x * share * m
     for o in range(6):
         w = W[o, k, i, j]
         if w <= w_min:
@@ -166,23 +182,17 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies, h
         if es > 0.0:
             if handover > 0.0 and abs(a_s) < handover * diffusive[k, i, j]:
                 # spread where one cell resolves no drift: to the diffusion stage (docs/METHOD.md,
-                # "Hand-over"), with its moment along d
-                Q[0, k, i, j] += es
-                if o < 2:
-                    Q[1, k, i, j] += sign * a_s * es
+                # "Hand-over")
+                _to_diffusion(Q, k, i, j, o, es, a_s * es)
             else:
-                pf, ps, pb, mf, mb, mj = _cone(table, a_s)
+                cone = _cone(table, a_s)
                 for n in range(6):
-                    if n == o:
-                        e, q, m = es * pf, o, mf
-                    elif n == (o ^ 1):
-                        e, q, m = es * pb, n, -mb
-                    else:
-                        e, q, m = es * ps, n, mj
+                    share, m = _part(o, n, cone)
+                    e = es * share
                     if e <= 0.0:
                         continue
                     k3, i3, j3 = face_neighbour(k, i, j, n)
-                    refl, trans, side_out, absorbed = _deliver(W, Wa, Th, q, k3, i3, j3, e, m, refl, trans,
+                    refl, trans, side_out, absorbed = _deliver(W, Wa, Th, n, k3, i3, j3, e, m, refl, trans,
                                                                side_out, absorbed)
         # ... or in the receiver's (Sh[s] (1 - Sh[c])): it crosses into the receiver and waits
         # there in slot 6 + o, which only this cell writes
