@@ -147,17 +147,12 @@ def _cone_parts(o, cone):
     return [(n,) + ((fr, mf) if n == o else (bk, -mb) if n == o ^ 1 else (sd, mj)) for n in range(6)]
 
 
-def _scattered_in(W, Wa, o, a_s, cone, handover, diffusive, Q, at=None):
-    """Light that scattered on its way into a cell along e_o (slot 6 + o of W, Wa; power x, moment
-    x a_s): to Q where |a_s| < handover * diffusive, else split by the cone partition about e_o
-    into the cell's own ordinates. Whole arrays, or the one cell ``at`` (a tuple); in place."""
+def _scattered_in(W, Wa, o, cone, at=None):
+    """Light that scattered on its way into a cell along e_o (slot 6 + o of W, Wa), split by the
+    cone partition about e_o (``cone``, of its a_s) into the cell's own ordinates. Whole arrays,
+    or the one cell ``at`` (a tuple); in place."""
     idx = (slice(None),) * 3 if at is None else at
     x = W[(6 + o,) + idx].copy()
-    if handover > 0:
-        leave = np.abs(a_s) < handover * diffusive[idx]
-        Q[(0,) + idx] += np.where(leave, x, 0.0)
-        Q[(1,) + idx] += np.where(leave, (o < 2) * (1.0 - 2.0 * (o % 2)) * a_s * x, 0.0)
-        x = np.where(leave, 0.0, x)
     W[(6 + o,) + idx] = 0.0
     Wa[(6 + o,) + idx] = 0.0
     for n, share, m in _cone_parts(o, cone):
@@ -165,18 +160,16 @@ def _scattered_in(W, Wa, o, a_s, cone, handover, diffusive, Q, at=None):
         Wa[(n,) + idx] += x * share * m
 
 
-def ordinates_step(W, Wa, Th, Sh, Dh, inv_area, phi, F, tally, handover=-1.0, diffusive=None, Q=None):
+def ordinates_step(W, Wa, Th, Sh, Dh, inv_area, phi, F, tally):
     """One iteration of the six-ordinate Jacobi wavefront, every pending packet sent one cell:
     the fixed point that the kernel's sweeps (kernels.ordinates.ordinates_sweep) reach but for
     the order in which packets merge (tests/test_ordinates.py).
     W, Wa (12, n_d, n_u, n_v): power and power times anisotropy pending in ordinate o = 0..5
     (+d, -d, +u, -u, +v, -v) of each cell, at its centre, then (slot 6 + o) the light that
-    scattered in the cell on its way in along e_o, with its a_s. First that light goes to Q
-    where |a_s| < handover * diffusive, or splits by the cone partition about e_o into the
-    cell's ordinates. Then a packet of lobe HG_a about e_o leaves through its sender's half
+    scattered in the cell on its way in along e_o, with its a_s. First that light splits by the
+    cone partition about e_o into the cell's ordinates. Then a packet of lobe HG_a about e_o leaves through its sender's half
     step Th[src]; of that, Sh[src] Sh[dst] crosses to the neighbour dst along e_o unscattered
-    (Th[dst]) and keeps a; 1 - Sh[src] scatters in the sender's half and goes to Q or splits
-    from there (parts moved one cell, Th of sender and neighbour); Sh[src] (1 - Sh[dst])
+    (Th[dst]) and keeps a; 1 - Sh[src] scatters in the sender's half and splits from there (parts moved one cell, Th of sender and neighbour); Sh[src] (1 - Sh[dst])
     scatters in the receiver's half and crosses into it (Th[dst]), into its slot 6 + o; both
     with a_s = a (D - S) / (1 - S) (D = Dh[src] Dh[dst], S = Sh[src] Sh[dst]). Accumulates phi
     and F (3, ...), the first moment in the domain's frame. Returns the next (W, Wa), float64."""
@@ -184,7 +177,7 @@ def ordinates_step(W, Wa, Th, Sh, Dh, inv_area, phi, F, tally, handover=-1.0, di
     W, Wa = np.array(W, np.float64), np.array(Wa, np.float64)
     for o in range(6):
         a_s = np.clip(np.divide(Wa[6 + o], W[6 + o], out=np.zeros(Th.shape), where=W[6 + o] > 0), -1.0, 1.0)
-        _scattered_in(W, Wa, o, a_s, _cone_lobe(a_s), handover, diffusive, Q)
+        _scattered_in(W, Wa, o, _cone_lobe(a_s))
     W_new, Wa_new = np.zeros(W.shape), np.zeros(W.shape)
     ones = np.ones(Th.shape)
     for o in range(6):
@@ -206,12 +199,6 @@ def ordinates_step(W, Wa, Th, Sh, Dh, inv_area, phi, F, tally, handover=-1.0, di
 
         send(W[o] * S, a, o, o)                                   # unscattered, on along e_o
         e1 = W[o] * (1.0 - Sh)                                    # scattered in the sender's half
-        if handover > 0:
-            leave = np.abs(a_s) < handover * diffusive
-            tally[ABSORBED] += np.sum(np.where(leave, e1 * (1.0 - Th), 0.0))     # its sender's half step
-            Q[0] += np.where(leave, e1 * Th, 0.0)
-            Q[1] += np.where(leave, sign * (axis == 0) * a_s * e1 * Th, 0.0)
-            e1 = np.where(leave, 0.0, e1)
         for n, share, m in _cone_parts(o, cone):
             send(e1 * share, m, n, n)
         # scattered in the receiver's half: into it (both half steps), its slot 6 + o
@@ -226,15 +213,13 @@ def _cone_lobe(a_s):
     return fr, sd, bk, mf, mb, hg.side_wedge_mean_cosine(a_s)
 
 
-def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    handover=-1.0, diffusive=None, Q=None):
+def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
     """One Gauss-Seidel sweep of the six-ordinate walk (twin of kernels.ordinates.ordinates_sweep),
     cell by cell, in place, in float64. Cells in order of k, i, j (each increasing if its
     ``forward_*``); at each cell first the light that scattered on its way in (slots 6..11, as
     ordinates_step's), then the ordinates o = 0..5 (+d, -d, +u, -u, +v, -v) in turn: a packet
     above ``w_min`` is taken, visits (phi, F), and is sent as ordinates_step's (exact HG shares):
-    its parts moved into their pending slots, what leaves the grid tallied, what is handed over
-    added to Q. Returns the number of packets sent."""
+    its parts moved into their pending slots, what leaves the grid tallied. Returns the number of packets sent."""
     n0, n1, n2 = Th.shape
     Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
     sent_packets = 0
@@ -267,7 +252,7 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
                     x = float(W[6 + o, k, i, j])
                     if x > 0.0:
                         a_s = np.array(np.clip(Wa[6 + o, k, i, j] / x, -1.0, 1.0))
-                        _scattered_in(W, Wa, o, a_s, _cone_lobe(a_s), handover, diffusive, Q, at=(k, i, j))
+                        _scattered_in(W, Wa, o, _cone_lobe(a_s), at=(k, i, j))
                 for o in range(6):
                     w = float(W[o, k, i, j])
                     if w <= w_min:
@@ -289,13 +274,9 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
                     a_s = float(a_s[0])
                     e = sent * (1.0 - sh)                      # scattered in the sender's half
                     if e > 0.0:
-                        if handover > 0 and abs(a_s) < handover * diffusive[k, i, j]:
-                            Q[0, k, i, j] += e
-                            Q[1, k, i, j] += sign * (o < 2) * a_s * e
-                        else:
-                            for n, share, m in _cone_parts(o, cone):
-                                deliver(e * float(np.ravel(share)[0]), float(np.ravel(m)[0]), n,
-                                        neighbour((k, i, j), n))
+                        for n, share, m in _cone_parts(o, cone):
+                            deliver(e * float(np.ravel(share)[0]), float(np.ravel(m)[0]), n,
+                                    neighbour((k, i, j), n))
                     if inside(ahead):                          # scattered in the receiver's half
                         deliver(sent * sh * (1.0 - sh2), a_s, 6 + o, ahead)
     return sent_packets

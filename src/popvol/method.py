@@ -119,8 +119,9 @@ KNOBS: tuple[Knob, ...] = (
          "kept in 17 fixed anisotropy bins instead of one merged lobe (linear in the light, so the "
          "answer does not depend on the schedule; 5-40x slower), or Gauss-Seidel sweeps with one "
          "lobe per lattice direction, in which light keeps its direction until it scatters, so that "
-         "light scattered sideways keeps going sideways (needs `rule = \"moment\"`; "
-         "docs/METHOD.md, \"Six ordinates\"). Point lights always sweep.",
+         "light scattered sideways keeps going sideways, every order walked with no diffusion stage "
+         "(needs `rule = \"moment\"`; docs/METHOD.md, \"Six ordinates\"). Point lights always "
+         "sweep.",
          experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "

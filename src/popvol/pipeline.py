@@ -142,9 +142,9 @@ def ordinate_fields(ds, medium, needed, outs, phid, flux) -> None:
     """The six-ordinate walk's fields on the medium's grid (docs/METHOD.md, "Six ordinates"):
     its unscattered light as the walk's lobe (outs = phi, phia, phi_dir, all set to phi_dir,
     a delta along the light) and the rest, phi - phi_dir (at least 0) with first moment
-    F - phi_dir d, plus what its diffusion stage holds (phi_d, J), as one lobe about its own
-    moment in ``phid`` and ``flux`` (float32 (3, nx, ny, nz), world frame), which the renderer
-    lights with the diffuse lobe capped at 1. ``ds``: the light's DomainSolution."""
+    F - phi_dir d, as one lobe about its own moment in ``phid`` and ``flux`` (float32 (3, nx,
+    ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1. ``ds``:
+    the light's DomainSolution (the walk has no diffusion stage)."""
     walk, dom = ds.result, ds.domain
     direct = walk.direct if walk.direct is not None else np.zeros_like(walk.phi)
     rest = np.maximum(walk.phi - direct, 0.0)
@@ -155,14 +155,6 @@ def ordinate_fields(ds, medium, needed, outs, phid, flux) -> None:
                     medium.voxel_size, (outs[2], phid, flux[0], flux[1], flux[2]), needed)
     outs[0][...] = outs[2]
     outs[1][...] = outs[2]
-    d, grid = walk.diffusion, ds.diffusion_grid
-    if d is not None:
-        diffuse = tuple(np.zeros(medium.shape, np.float32) for _ in range(4))
-        domain_to_world(diffusion_fields(d, grid), grid.frame, grid.origin, d.h, medium.origin,
-                        medium.voxel_size, diffuse, needed)
-        phid += diffuse[0]
-        for c in range(3):
-            flux[c] += diffuse[c + 1]
 
 
 def warm_domains(warm, scene) -> tuple[dict, str]:

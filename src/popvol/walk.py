@@ -257,12 +257,10 @@ def row_groups(row_work: np.ndarray, visits: float, forward_u: bool, lanes: int)
     return np.unique(np.concatenate(([0], np.clip(cuts, 1, n1 - 1), [n1]))).astype(np.int64)
 
 
-def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
-                   handover=-1.0, diffusive=None, Q=None) -> tuple[int, float, float, int]:
+def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
+                   ) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
-    domain's shape, :func:`scatter_factor`; ``handover``, ``diffusive``, ``Q`` as
-    :func:`handover_arrays` gives them: scattered light whose lobe has spread leaves for Q, and
-    what is still pending in the diffusion region at the end goes there too), by thresholded
+    domain's shape, :func:`scatter_factor`), every order of scattering, by thresholded
     Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
     in the mean pending power): the injected light enters ordinate +d; the sweeps alternate +d
     / -d every sweep, the order along u every second and along v every fourth. Returns
@@ -290,19 +288,10 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         # the rows cut into one group per thread by the work each row did in the sweep before
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
-                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, handover, diffusive, Q)
+                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work)
         return K.total_energy(W.reshape((12 * shape[0],) + shape[1:])), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * int(np.prod(shape)), injected, progress)
-    if handover > 0:
-        # what is still pending in the diffusion region (at cell centres, after the receivers'
-        # half steps) goes to the diffusion stage, as the one-lobe sweeps' hand_over_pending
-        region = diffusive > 0
-        Q[0] += np.where(region, W.sum(axis=0, dtype=np.float64), 0.0).astype(np.float32)
-        moment = Wa[0].astype(np.float64) - Wa[1] + Wa[6] - Wa[7]          # along d
-        Q[1] += np.where(region, moment, 0.0).astype(np.float32)
-        W[:, region] = 0.0
-        in_flight = float(np.sum(W, dtype=np.float64))
     return it, in_flight, absorbed, sent
 
 
@@ -325,8 +314,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         rule: "moment" or "paper"; solver: "sweep", "jacobi", "binned" (the Jacobi wavefront
             with each cell's light in fixed anisotropy bins, linear in the light:
             :func:`walk_binned`) or "ordinates" (sweeps with one lobe per lattice direction:
-            :func:`walk_ordinates`; rule "moment" only; the result's ``flux`` holds the
-            fluence's first moment vector).
+            :func:`walk_ordinates`; rule "moment" only, no hand-over; the result's ``flux``
+            holds the fluence's first moment vector).
         tolerance: stop when in-flight energy < tolerance * injected; max_iterations: cap
             (0 = automatic). With ``handover`` and the sweep or binned solver, what is then
             still pending in the diffusion region is handed over (:func:`hand_over_pending`).
@@ -334,7 +323,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         progress: optional callable(iteration, residual).
         handover: (method.handover_scale, float32 (n_d, n_u, n_v) :func:`handover_factor`): a
             packet whose |a| is below their product leaves the walk; its power and moment are
-            returned in ``handed``. None: light walks until it leaves.
+            returned in ``handed``. None: light walks until it leaves (the six-ordinate walk
+            takes no hand-over).
         scatter: float32 (n_d, n_u, n_v) :func:`scatter_factor`, which the six-ordinate walk
             needs (the share of a packet that crosses a transfer unscattered); the other
             solvers ignore it.
@@ -375,14 +365,14 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             if progress is not None and it % 16 == 0:
                 progress(it, in_flight / budget.injected)
     elif solver == "ordinates":
-        if periodic or not moment:
-            raise ValueError("the six-ordinate walk has no periodic faces or 'paper' rule")
+        if periodic or not moment or handover is not None:
+            raise ValueError("the six-ordinate walk has no periodic faces, 'paper' rule or hand-over")
         if scatter is None:
             raise ValueError("the six-ordinate walk needs scatter (walk.scatter_factor)")
         flux = np.zeros((3,) + shape, np.float32)
         Sh = np.ascontiguousarray(scatter, np.float32)
         it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
-                                                              tally, target, cap, progress, eps, diffusive, Q)
+                                                              tally, target, cap, progress)
         phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,

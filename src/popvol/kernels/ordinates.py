@@ -20,9 +20,8 @@ cell. The rest has the anisotropy a_s = a (D - S) / (1 - S) (D = Dh[s] Dh[c], so
 cosine of the whole decays as Eq. 12). Its share 1 - Sh[s] scatters in the sender's half and
 leaves from there; the share Sh[s] (1 - Sh[c]) scatters in the receiver's half, crosses into
 it (Th[c]) and waits in its slot 6 + o until c is visited, then leaves from c. Where it
-leaves from, it goes to the diffusion stage if |a_s| < handover * diffusive[cell] (its power and
-moment along d into Q, docs/METHOD.md "Hand-over"), or splits by the cone partition about e_o
-(supplement Eq. 2, 4, 7; the shares of docs/METHOD.md Eq. 6): its front part goes on along e_o
+leaves from, it splits by the cone partition about e_o (supplement Eq. 2, 4, 7; the shares of
+docs/METHOD.md Eq. 6): its front part goes on along e_o
 in ordinate o with anisotropy m_front (Eq. 8), its back part into ordinate o ^ 1 with
 |m_back|, and the side part toward e_n into ordinate n with the mean cosine, about e_n, of the
 side wedge of HG_a_s about e_o (``table`` column MJ); from the sender to its neighbours, from
@@ -30,7 +29,8 @@ the receiver into its own ordinates. The side part's drift along e_o (m_side) is
 Every transfer is attenuated by the half steps Th of both cells (Eq. 11). So light keeps its
 direction until it scatters, light that scatters sideways keeps going sideways, and light
 that scatters just inside a lit face leaves from the face's first cell. Each slot is written
-by one neighbour only (c's slot 6 + o by c - e_o).
+by one neighbour only (c's slot 6 + o by c - e_o). Every order of scattering is walked: there is
+no hand-over to a diffusion stage.
 
 The packets are sent by thresholded Gauss-Seidel sweeps (:func:`ordinates_sweep`), cell by
 cell in place, as the one-lobe walk's sweeps are (kernels/propagation.py): a part sent to a
@@ -110,41 +110,26 @@ def _part(o, n, cone):
     return ps, mj
 
 
-@nb.njit(inline="always", cache=True)
-def _to_diffusion(Q, k, i, j, o, e, ea):
-    """Scattered light of power ``e`` and moment ``ea`` (power times its anisotropy about e_o)
-    handed over to the diffusion stage at cell (k, i, j): its power into Q[0], its moment along
-    d into Q[1]."""
-    Q[0, k, i, j] += e
-    if o < 2:
-        Q[1, k, i, j] += (1.0 - 2.0 * o) * ea
-
-
 @nb.njit(**ON_ITS_OWN)
-def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies, handover, diffusive, Q):
+def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
     docstring; :func:`ordinates_sweep`). ``tallies`` = (reflected, transmitted, side escaped,
-    absorbed, packets sent) so far; returns them updated. With ``handover`` > 0, scattered light
-    whose |a_s| < handover * diffusive[cell] goes to Q (power, moment along d) instead."""
+    absorbed, packets sent) so far; returns them updated."""
     refl, trans, side_out, absorbed, sent_packets = tallies
     n0, n1, n2 = Th.shape
     th = Th[k, i, j]
     dh = Dh[k, i, j]
     sh = Sh[k, i, j]
     for o in range(6):
-        # light that scattered in this cell's half of its way in along e_o (slot 6 + o): to the
-        # diffusion stage, or split by the cone partition about e_o into this cell's ordinates
+        # light that scattered in this cell's half of its way in along e_o (slot 6 + o): split
+        # by the cone partition about e_o into this cell's ordinates
         x = W[6 + o, k, i, j]
         if x <= 0.0:
             continue
         xa = Wa[6 + o, k, i, j]
         W[6 + o, k, i, j] = 0.0
         Wa[6 + o, k, i, j] = 0.0
-        a_s = xa / x
-        if handover > 0.0 and abs(a_s) < handover * diffusive[k, i, j]:
-            _to_diffusion(Q, k, i, j, o, x, xa)
-            continue
-        cone = _cone(table, a_s)
+        cone = _cone(table, xa / x)
         for n in range(6):
             share, m = _part(o, n, cone)
             W[n, k, i, j] += x * share
@@ -177,23 +162,18 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies, h
         # the part that scatters: its lobe's mean cosine a_s = a (D - S) / (1 - S), so that the
         # whole decays by D (Eq. 12) while the unscattered part keeps a
         a_s = a * (D - S) / (1.0 - S)
-        # it scatters in the sender's half (1 - Sh[s]): handed over, or split from here ...
+        # it scatters in the sender's half (1 - Sh[s]) and is split from here ...
         es = sent * (1.0 - sh)
         if es > 0.0:
-            if handover > 0.0 and abs(a_s) < handover * diffusive[k, i, j]:
-                # spread where one cell resolves no drift: to the diffusion stage (docs/METHOD.md,
-                # "Hand-over")
-                _to_diffusion(Q, k, i, j, o, es, a_s * es)
-            else:
-                cone = _cone(table, a_s)
-                for n in range(6):
-                    share, m = _part(o, n, cone)
-                    e = es * share
-                    if e <= 0.0:
-                        continue
-                    k3, i3, j3 = face_neighbour(k, i, j, n)
-                    refl, trans, side_out, absorbed = _deliver(W, Wa, Th, n, k3, i3, j3, e, m, refl, trans,
-                                                               side_out, absorbed)
+            cone = _cone(table, a_s)
+            for n in range(6):
+                share, m = _part(o, n, cone)
+                e = es * share
+                if e <= 0.0:
+                    continue
+                k3, i3, j3 = face_neighbour(k, i, j, n)
+                refl, trans, side_out, absorbed = _deliver(W, Wa, Th, n, k3, i3, j3, e, m, refl, trans,
+                                                           side_out, absorbed)
         # ... or in the receiver's (Sh[s] (1 - Sh[c])): it crosses into the receiver and waits
         # there in slot 6 + o, which only this cell writes
         if inside:
@@ -208,7 +188,7 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies, h
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    edges, row_work, handover, diffusive, Q):
+                    edges, row_work):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
     a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
@@ -240,7 +220,7 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
                     t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
-                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, t, handover, diffusive, Q)
+                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, t)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]

@@ -115,11 +115,12 @@ class SunDomain(DirectionalDomain):
         """Walk unit irradiance from the face k = 0 (E h^2 per cell of slice 0); with the
         diffusion stage, packets hand over at ``method.handover_scale`` times the cell's
         :func:`handover_factor`, or at ``method.environment_handover_scale`` times it for a
-        broad lobe (a0 < 1), which has no direct field."""
+        broad lobe (a0 < 1), which has no direct field. The six-ordinate walk carries every
+        order itself: no hand-over (docs/METHOD.md, "Six ordinates")."""
         sigma_t, sigma_s, g = optics
         Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
         handover = None
-        if method.isotropic == "diffusion":
+        if method.isotropic == "diffusion" and method.solver != "ordinates":
             # a broad lobe (an environment's light) has no direct field: its single scattering is
             # the walk's, so it is handed over later (docs/METHOD.md, "Hand-over")
             scale = method.handover_scale if self.unscattered else method.environment_handover_scale
