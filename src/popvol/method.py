@@ -132,7 +132,7 @@ KNOBS: tuple[Knob, ...] = (
     Knob("isotropic", "diffusion", ("diffusion", "walk"), "What happens to light whose lobe has spread.",
          "It is handed to a diffusion solve with the physical coefficient D = 1 / (3 sigma_tr) "
          "(`popvol/diffusion.py`), or it keeps walking cell by cell (the papers' POP); see the "
-         "README on bias.", experimental=True),
+         "README on bias. A sun walked with `solver = \"ordinates\"` always walks.", experimental=True),
     Knob("handover_scale", 2.0, (0.0, 100.0), "Hand-over threshold of the diffusion stage.",
          "With `isotropic = \"diffusion\"`: a packet leaves the walk when its anisotropy "
          "\\|a\\| < handover_scale * (1 - exp(-sigma_tr h)), h the cell size, sigma_tr = sigma_a + "
