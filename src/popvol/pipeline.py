@@ -72,7 +72,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
         # the unscattered light crosses the true density (docs/METHOD.md, "Optically thick voxels")
         replace_direct(walk, domain.direct_fluence(domain.resample(medium, channel)[0]))
     ds = DomainSolution(light, domain, walk, t1 - t0, channel)
-    if walk.handed is not None:         # the diffusion stage
+    if walk.handed is not None:         # the diffusion stage (not for a sun's six-ordinate walk)
         t2 = time.perf_counter()
         hand = domain.hand_over(walk, optics, transport, method, channel)
         x0 = None
@@ -130,22 +130,13 @@ def run_jobs(fn, cells: list[int], workers: int) -> list:
         pool.shutdown(wait=True, cancel_futures=True)
 
 
-def diffusion_fields(d, grid) -> tuple:
-    """A diffusion stage's fields for the medium's grid: (phi_d, J_x, J_y, J_z), float32 arrays
-    of its grid's shape, the flux in world axes (component c of J = sum over the grid axes a of
-    frame[a, c] J_a)."""
-    J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
-    return d.phi, J[0], J[1], J[2]
-
-
-def ordinate_fields(ds, medium, needed, outs, phid, flux) -> None:
+def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
     """The six-ordinate walk's fields on the medium's grid (docs/METHOD.md, "Six ordinates"):
     its unscattered light as the walk's lobe (outs = phi, phia, phi_dir, all set to phi_dir,
     a delta along the light) and the rest, phi - phi_dir (at least 0) with first moment
     F - phi_dir d, as one lobe about its own moment in ``phid`` and ``flux`` (float32 (3, nx,
-    ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1. ``ds``:
-    the light's DomainSolution (the walk has no diffusion stage)."""
-    walk, dom = ds.result, ds.domain
+    ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1 (the
+    walk has no diffusion stage)."""
     direct = walk.direct if walk.direct is not None else np.zeros_like(walk.phi)
     rest = np.maximum(walk.phi - direct, 0.0)
     F = walk.flux.copy()
@@ -316,14 +307,17 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
         ds.light_index = i
         t0 = time.perf_counter()
         if ds.result.flux is not None:
-            ordinate_fields(ds, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]), phid[i, ch], flux[i, ch])
+            ordinate_fields(ds.result, ds.domain, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]),
+                            phid[i, ch], flux[i, ch])
             lobe_cap[i] = 1.0
             return ds, time.perf_counter() - t0
         d, grid = ds.result.diffusion, ds.diffusion_grid
         diffuse = ()                    # (field, out) pairs of the diffusion stage
         if d is not None:
-            diffuse = tuple(zip(diffusion_fields(d, grid), (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1],
-                                                            flux[i, ch, 2])))
+            # world component c of J = sum over the grid axes a of frame[a, c] J_a
+            J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
+            diffuse = tuple(zip((d.phi, J[0], J[1], J[2]), (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1],
+                                                             flux[i, ch, 2])))
         if grid is ds.domain and d.h == ds.domain.h and d.phi.shape == tuple(ds.domain.shape):
             # the diffusion stage ran on the walk's own cells: one pass maps both
             ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]), diffuse)

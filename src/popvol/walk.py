@@ -365,8 +365,8 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             if progress is not None and it % 16 == 0:
                 progress(it, in_flight / budget.injected)
     elif solver == "ordinates":
-        if periodic or not moment or handover is not None:
-            raise ValueError("the six-ordinate walk has no periodic faces, 'paper' rule or hand-over")
+        if handover is not None or periodic or not moment:
+            raise ValueError("the six-ordinate walk has no hand-over, periodic faces or 'paper' rule")
         if scatter is None:
             raise ValueError("the six-ordinate walk needs scatter (walk.scatter_factor)")
         flux = np.zeros((3,) + shape, np.float32)

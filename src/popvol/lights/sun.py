@@ -120,7 +120,7 @@ class SunDomain(DirectionalDomain):
         sigma_t, sigma_s, g = optics
         Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
         handover = None
-        if method.isotropic == "diffusion" and method.solver != "ordinates":
+        if method.isotropic == "diffusion" and method.solver != "ordinates":   # six ordinates walk it all
             # a broad lobe (an environment's light) has no direct field: its single scattering is
             # the walk's, so it is handed over later (docs/METHOD.md, "Hand-over")
             scale = method.handover_scale if self.unscattered else method.environment_handover_scale
