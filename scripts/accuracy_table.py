@@ -1,8 +1,9 @@
-"""Write docs/ACCURACY.md: the default method and the walk alone against Mitsuba 3 references on
-the accuracy suite, at 64, 128 and 256 cells, in the metric of ``popvol compare`` (with, for the
-notes, the default without the gathered last bounce at 64 and 128 cells, the Jacobi wavefront at
-128, the binned one at 64 and the six-ordinate one at 64 and 128). Run from the repository root, with ../shared beside the checkout (about 40 minutes on 2
-cores once the references exist):
+"""Write docs/ACCURACY.md: the default method (six ordinates) and the one-lobe walk alone against
+Mitsuba 3 references on the accuracy suite, at 64, 128 and 256 cells, in the metric of ``popvol
+compare`` (with, for the notes, the one-lobe sweeps with their diffusion stage at every
+resolution, the default without the gathered last bounce at 64 and 128 cells, the one-lobe Jacobi
+wavefront at 128 and the binned one at 64). Run from the repository root, with ../shared beside
+the checkout (about 40 minutes on 2 cores once the references exist):
 
     python scripts/accuracy_table.py [--spp 4096] [--variant llvm_ad_rgb]
 
@@ -67,14 +68,16 @@ GALLERY = {
 #: Mitsuba ~10x more per sample than the others; the haze is thin and converges fast
 SPP_SCALE = {"smoke1": 0.125, "wdas_density_10": 0.125, "haze": 0.5}
 RESOLUTIONS = (64, 128, 256)
-#: (label, method overrides, resolutions): the default and the walk alone at every resolution;
-#: the default without the gathered last bounce at 64 and 128 cells, the Jacobi wavefront at 128,
-#: the binned one at 64 and the six-ordinate one at 64 and 128 (docs/METHOD.md, "Gathered last
-#: bounce", "The schedule", "The merge itself", "Six ordinates"), for the notes
-VARIANTS = (("default", {}, RESOLUTIONS), ("walk alone", {"isotropic": "walk"}, RESOLUTIONS),
+#: (label, method overrides, resolutions): the default (six ordinates) and the one-lobe walk alone
+#: at every resolution; for the notes, the one-lobe sweeps with their diffusion stage (the default
+#: up to the commit that made six ordinates the default) at every resolution, the default without
+#: the gathered last bounce at 64 and 128 cells, the one-lobe Jacobi wavefront at 128 and the
+#: binned one at 64 (docs/METHOD.md, "Six ordinates", "Gathered last bounce", "The schedule", "The
+#: merge itself")
+VARIANTS = (("default", {}, RESOLUTIONS), ("walk alone", {"solver": "sweep", "isotropic": "walk"}, RESOLUTIONS),
+            ("one-lobe sweeps", {"solver": "sweep"}, RESOLUTIONS),
             ("no gather", {"gather": 0}, (64, 128)),
-            ("jacobi", {"solver": "jacobi"}, (128,)), ("binned", {"solver": "binned"}, (64,)),
-            ("six ordinates", {"solver": "ordinates"}, (64, 128)))
+            ("jacobi", {"solver": "jacobi"}, (128,)), ("binned", {"solver": "binned"}, (64,)))
 GOAL = {"relmse": 0.03, "band": 0.05, "drift": 0.02}
 
 
@@ -150,14 +153,29 @@ def scene_section(key: str, what: str, path: Path, ref) -> tuple[list[str], dict
 def summary_row(key: str, s: dict) -> str:
     rows = s["rows"]
     d = [rows["default", n] for n in RESOLUTIONS]
+    o = [rows["one-lobe sweeps", n] for n in RESOLUTIONS]
     b = d[-1]["brightness_bands"]
     return (f"| {key} | {s['noise']:.3f} | " + " / ".join(f"{r['relmse']:.3f}" for r in d)
             + f" | x{b['dim']:.2f} / x{b['mid']:.2f} / x{b['bright']:.2f} | {100 * drift(d[1], d[2]):.1f} % | "
-            f"{rows['walk alone', 128]['relmse']:.3f} | {rows['no gather', 128]['relmse']:.3f} "
+            f"{rows['walk alone', 128]['relmse']:.3f} | " + " / ".join(f"{r['relmse']:.3f}" for r in o)
+            + f" (x{o[1]['brightness_ratio']:.2f}) | {rows['no gather', 128]['relmse']:.3f} "
             f"(x{rows['no gather', 128]['brightness_ratio']:.2f}) | {rows['jacobi', 128]['relmse']:.3f} | "
-            f"{rows['binned', 64]['relmse']:.3f} | {rows['six ordinates', 64]['relmse']:.3f} / "
-            f"{rows['six ordinates', 128]['relmse']:.3f} (x{rows['six ordinates', 128]['brightness_ratio']:.2f}) | "
-            f"{'yes' if goal_met(d[1], d[2]) else 'no'} |")
+            f"{rows['binned', 64]['relmse']:.3f} | {'yes' if goal_met(d[1], d[2]) else 'no'} |")
+
+
+def means(measured: list[dict], only) -> list[str]:
+    """A line of the mean and median relMSE over the scenes, per variant and resolution (none
+    with ``--only``, whose kept scenes' figures are not at hand)."""
+    if only or not measured:
+        return []
+    parts = []
+    for label, _overrides, resolutions in VARIANTS:
+        figs = []
+        for n in resolutions:
+            v = sorted(rows[label, n]["relmse"] for rows in measured)
+            figs.append(f"{sum(v) / len(v):.3f} ({v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2]):.3f}) at {n}")
+        parts.append(f"{label} {', '.join(figs)}")
+    return [f"Mean (median) relMSE over the {len(measured)} scenes: " + "; ".join(parts) + ".", ""]
 
 
 def kept_sections(path: Path) -> dict[str, tuple[list[str], list[str]]]:
@@ -199,7 +217,7 @@ def main():
         unknown = sorted(set(args.only) - {c[0] for c in cases})
         if unknown:
             ap.error(f"--only: no scene {', '.join(unknown)} in the table")
-    body, summary = [], []
+    body, summary, measured = [], [], []
     for key, what, path, kind in cases:
         if keep is not None and key not in args.only:
             if key not in keep:
@@ -223,6 +241,7 @@ def main():
         lines, s = scene_section(key, what, path, ref)
         body += lines
         summary.append(summary_row(key, s))
+        measured.append(s["rows"])
     head = ["# Accuracy against Mitsuba 3", "",
             "Generated by `python scripts/accuracy_table.py`; do not edit. popvol's solve and render at the "
             "reference's size on 2 cores, against Mitsuba 3 `volpath` (max_depth 1024, variant "
@@ -233,28 +252,31 @@ def main():
             "brightness ratio popvol / Mitsuba there, and the same ratio in the reference's dimmest 50 % "
             "(dim), middle 40 % (mid) and brightest 10 % (bright) of those pixels; the reference's own "
             "noise in the same metric beside it. A sky's or an HDR map's domains keep "
-            "`environment_resolution` = 64 at every row. The default gathers the last scattering "
-            "(`gather = 64`, docs/METHOD.md \"Gathered last bounce\"), and so do the variants. Beside "
-            "the default: the walk alone (`isotropic = \"walk\"`) at every resolution, the default "
-            "without the gather (`gather = 0`, the lobes light the camera) at 64 and 128 cells, the "
-            "Jacobi wavefront (`solver = "
-            "\"jacobi\"`) at 128 cells and the binned wavefront (`solver = \"binned\"`, docs/METHOD.md "
-            "\"The merge itself\") at 64, and the six-ordinate walk (`solver = \"ordinates\"`, "
-            "docs/METHOD.md \"Six ordinates\") at 64 and 128 (point lights always sweep, with the "
-            "diffusion stage but in the walk-alone rows); the other `[experimental]` variants are measured in "
+            "`environment_resolution` = 64 at every row. The default walks a sun's and an "
+            "environment's light with six ordinates, every order, with no diffusion stage (`solver = "
+            "\"ordinates\"`, docs/METHOD.md \"Six ordinates\"; point lights sweep one lobe with the "
+            "diffusion stage) and gathers the last scattering (`gather = 64`, docs/METHOD.md "
+            "\"Gathered last bounce\"), and so do the variants but the one without it. Beside the "
+            "default: the one-lobe walk alone (`solver = \"sweep\"`, `isotropic = \"walk\"`: the "
+            "papers' POP) and the one-lobe sweeps with their diffusion stage (`solver = \"sweep\"`, "
+            "the default until six ordinates became it) at every resolution, the default without the "
+            "gather (`gather = 0`, the lobes light the camera) at 64 and 128 cells, the one-lobe "
+            "Jacobi wavefront (`solver = \"jacobi\"`) at 128 cells and the binned wavefront (`solver = "
+            "\"binned\"`, docs/METHOD.md \"The merge itself\") at 64 (both with the diffusion "
+            "stage); the other `[experimental]` variants are measured in "
             "[ACCURACY_NOTES.md](ACCURACY_NOTES.md) and docs/METHOD.md.", "",
             f"The goal (#11): relMSE <= {GOAL['relmse']}, every band within {100 * GOAL['band']:.0f} % of x1 "
             f"and no band moving by more than {100 * GOAL['drift']:.0f} % from 128 to 256 cells, on every "
             "scene.", "",
             "## Summary: the default method", "",
             "| scene | reference noise | relMSE at 64 / 128 / 256 cells | dim / mid / bright at 256 | "
-            "largest band move 128 -> 256 | walk alone, relMSE at 128 | no gather, at 128 (brightness) | "
-            "Jacobi, at 128 | binned, at 64 | six ordinates, at 64 / 128 (brightness at 128) | goal met |",
+            "largest band move 128 -> 256 | walk alone, relMSE at 128 | one-lobe sweeps, at 64 / 128 / 256 "
+            "(brightness at 128) | no gather, at 128 (brightness) | Jacobi, at 128 | binned, at 64 | goal met |",
             "|---|---|---|---|---|---|---|---|---|---|---|"]
     made = f"_Generated in {time.perf_counter() - t_all:.0f} s._"
     if args.only:
         made = f"_Generated in parts; {', '.join(args.only)} last, in {time.perf_counter() - t_all:.0f} s._"
-    text = head + summary + [""] + body + [made]
+    text = head + summary + [""] + means(measured, args.only) + body + [made]
     out = ROOT / "docs" / "ACCURACY.md"
     tmp = out.with_suffix(".md.tmp")
     tmp.write_text("\n".join(text) + "\n")

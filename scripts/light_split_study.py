@@ -8,9 +8,10 @@ Each scene is split by its [[lights]] tables into the part lit by its suns and p
 ("sun") and the part lit by its sky or HDR map ("environment"); popvol and Mitsuba 3 are both
 linear in the lights, so the parts add up to the scene. Each part is rendered alone by Mitsuba
 (``--spp`` samples per pixel in passes of 64, llvm_ad_rgb, into ``--out``, resumed if there) and
-by popvol at ``--resolution`` cells with the default method, with an environment's lights handed
-over at a sun's threshold (``environment_handover_scale = 2``, a sun's ``handover_scale``) and
-with the walk alone (``isotropic = "walk"``), and measured as ``popvol compare`` does (the
+by popvol at ``--resolution`` cells with the default method (six ordinates), with the one-lobe
+sweeps and their diffusion stage (``solver = "sweep"``), the same with an environment's lights
+handed over at a sun's threshold (``environment_handover_scale = 2``, a sun's
+``handover_scale``) and the one-lobe walk alone (``isotropic = "walk"``), and measured as ``popvol compare`` does (the
 medium pixels of the whole scene): relMSE, brightness and the reference's dim / mid / bright
 bands, with the part's reference noise. The default scenes are
 the gallery's that have a sky (examples/wdas_side, wdas_front, wdas_silver, dragon_sky,
@@ -36,8 +37,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENES = [ROOT / "examples" / f"{n}.toml" for n in ("wdas_side", "wdas_front", "wdas_silver", "dragon_sky",
                                                     "demo_dusk")] + [ROOT / "scenes" / "accuracy" / "demo_envmap.toml"]
 ENVIRONMENT = ("sky", "envmap")
-VARIANTS = (("default", {}), ("environment at a sun's threshold", {"environment_handover_scale": 2.0}),
-            ("walk alone", {"isotropic": "walk"}))
+VARIANTS = (("default", {}), ("sweeps", {"solver": "sweep"}),
+            ("sweeps, environment at a sun's threshold", {"solver": "sweep", "environment_handover_scale": 2.0}),
+            ("walk alone", {"solver": "sweep", "isotropic": "walk"}))
 SPP_PER_PASS = 64
 
 

@@ -15,7 +15,8 @@ Printed on the pixels that see the medium (popvol compare's mask), in all of the
 reference's dimmest 50 %, middle 40 % and brightest 10 %: each order band's share of the full
 reference's luminance, then popvol's single scattering over Mitsuba's order 1 and popvol's rest
 over Mitsuba's orders >= 2 (brightness ratios), with the noise (one standard deviation) of each
-ratio from the references' passes, and the same for the walk alone (``isotropic = "walk"``; its
+ratio from the references' passes, and the same for the one-lobe walk alone (``solver = "sweep"``,
+``isotropic = "walk"``; its
 single scattering is the default's).
 """
 from __future__ import annotations
@@ -73,7 +74,7 @@ def main() -> None:
     solution = popvol.solve(scene)
     single = popvol.render(scene, solution.single_scattering())
     whole = popvol.render(scene, solution)
-    walk_scene = popvol.load_scene(scene_path, width=w, height=h, isotropic="walk")
+    walk_scene = popvol.load_scene(scene_path, width=w, height=h, solver="sweep", isotropic="walk")
     walk_whole = popvol.render(walk_scene, popvol.solve(walk_scene))
 
     levels = [luminance_sums(cuts[d].image, masks) for d in DEPTHS] + [luminance_sums(full.image, masks)]

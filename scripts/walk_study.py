@@ -3,13 +3,14 @@ checkout):
 
     python scripts/walk_study.py [--resolution 64] [--gather N] [--variants KEY,...] [NAME ...]
 
-Variants (KEY: what differs from the default method): "default" (sweeps + diffusion), "binned"
-(the binned wavefront + diffusion: experimental.solver = "binned", kernels/binned.py, each
-cell's light kept in fixed anisotropy bins, so the walk is linear in the light), "walk" and
-"binned-walk" (the same walks alone), "ordinates" (the six-ordinate walk,
+Variants (KEY: what differs from the default method): "default" (the six-ordinate walk,
 kernels/ordinates.py, which walks all of a sun's light; point lights keep the sweeps and the
-diffusion stage), "fine-diffusion" (the default with its diffusion stage on the domain's own
-cells, ``diffusion_resolution = 0``, instead of blocks of them). Default: all six. ``--gather N``: method.gather of every variant (default:
+diffusion stage), "sweep" (one lobe per cell, sweeps + diffusion: experimental.solver =
+"sweep"), "binned" (the binned wavefront + diffusion: experimental.solver = "binned",
+kernels/binned.py, each cell's light kept in fixed anisotropy bins, so the walk is linear in the
+light), "walk" and "binned-walk" (those walks alone), "fine-diffusion" (the sweeps with their
+diffusion stage on the domain's own cells, ``diffusion_resolution = 0``, instead of blocks of
+them). Default: all six. ``--gather N``: method.gather of every variant (default:
 the method's, 64 directions; 0: the fields' lobes light the camera, kernels/gather.py).
 
 NAME: "regression" (tests/fixtures/regression_cloud), a scene of scenes/accuracy/ (reference in
@@ -31,12 +32,13 @@ from popvol.reference import load_reference
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["regression", "wdas_angle_090", "wdas_side", "wdas_front", "wdas_silver", "field_sun", "dragon_sky",
          "demo_dusk"]
-VARIANTS = {"default": ("sweeps + diffusion, gathered (default)", {}),
+VARIANTS = {"default": ("six ordinates, gathered (default)", {}),
+            "sweep": ("sweeps + diffusion, gathered", {"solver": "sweep"}),
             "binned": ("binned + diffusion", {"solver": "binned"}),
-            "walk": ("sweeps, walk alone", {"isotropic": "walk"}),
+            "walk": ("sweeps, walk alone", {"solver": "sweep", "isotropic": "walk"}),
             "binned-walk": ("binned, walk alone", {"solver": "binned", "isotropic": "walk"}),
-            "ordinates": ("six ordinates", {"solver": "ordinates"}),
-            "fine-diffusion": ("sweeps + diffusion on the domain's own cells", {"diffusion_resolution": 0})}
+            "fine-diffusion": ("sweeps + diffusion on the domain's own cells", {"solver": "sweep",
+                                                                                "diffusion_resolution": 0})}
 
 
 def case(name: str) -> tuple[Path, Path]:

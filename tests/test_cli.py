@@ -162,7 +162,7 @@ def test_bench_quick_writes_well_formed_figures(tmp_path):
                 "render_camera_samples_per_s"):
         assert prop[key]["min"] > 0, key
     demo = res["scenes"]["demo"]
-    assert demo["seconds"]["total"]["min"] > 0 and demo["residual"] <= Method().tolerance and demo["method"].startswith("moment")
+    assert demo["seconds"]["total"]["min"] > 0 and demo["residual"] <= Method().tolerance and demo["method"].startswith("ordinates: moment")
     assert set(demo["seconds"]) >= {"load", "resample", "propagate", "diffusion", "fields", "render", "total"}
     # every domain of the demo sweeps and sends, thousands of cells a sweep (a sweep in which no
     # cell passes the Southwell threshold is followed by one in which every pending cell sends)
@@ -301,10 +301,12 @@ def test_bad_cli_knob_names_the_option(tmp_path):
 
 def test_experimental_table_and_python_overrides(tmp_path):
     p = write_scene(tmp_path, MEDIUM + LIGHT + '[method]\nresolution = 16\n'
-                    '[experimental]\nisotropic = "walk"\nrule = "paper"\n')
+                    '[experimental]\nisotropic = "walk"\nrule = "paper"\nsolver = "sweep"\n')
     s = load_scene(p)
     assert (s.method.isotropic, s.method.rule, s.method.resolution) == ("walk", "paper", 16)
-    assert s.method.experimental_changes() == {"rule": "paper", "isotropic": "walk"}
+    assert s.method.experimental_changes() == {"solver": "sweep", "rule": "paper", "isotropic": "walk"}
+    with pytest.raises(PopvolError, match=r"experimental\.rule = 'paper' needs experimental\.solver = 'sweep'"):
+        load_scene(p, solver="ordinates")
     s = load_scene(p, isotropic="diffusion", solver="jacobi", handover_scale=3, spp=2)
     assert (s.method.isotropic, s.method.solver, s.method.handover_scale, s.method.spp) == \
         ("diffusion", "jacobi", 3.0, 2)

@@ -227,8 +227,12 @@ def procedural_scene(**experimental):
 
 
 def test_ordinates_need_the_moment_rule():
-    with pytest.raises(PopvolError, match=r"solver = 'ordinates' needs experimental.rule = 'moment' \(got 'paper'\)"):
-        procedural_scene(solver="ordinates", rule="paper")
+    """The paper's rule with the default solver is refused, naming the solvers that take it."""
+    for experimental in ({"rule": "paper"}, {"solver": "ordinates", "rule": "paper"}):
+        with pytest.raises(PopvolError, match=r"rule = 'paper' needs experimental.solver = 'sweep', 'jacobi' or "
+                                              r"'binned' \(the default, 'ordinates', takes rule = 'moment' only"):
+            procedural_scene(**experimental)
+    assert procedural_scene(solver="sweep", rule="paper").method.rule == "paper"
 
 
 @pytest.fixture(scope="module")

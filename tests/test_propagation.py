@@ -499,7 +499,8 @@ def test_a_suns_fields_on_the_world_grid_are_its_domains_own(diffusion_resolutio
         "medium": {"type": "procedural", "resolution": 16, "seed": 3, "scale": 40.0, "albedo": 0.99, "g": 0.85},
         "lights": [{"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": [1.0, 1.0, 1.0]}],
         "camera": {"width": 16, "height": 16},
-        "method": {"resolution": 16, "diffusion_resolution": diffusion_resolution}})
+        "method": {"resolution": 16, "diffusion_resolution": diffusion_resolution},
+        "experimental": {"solver": "sweep"}})                  # a sun with a diffusion stage
     sol = popvol.solve(s)
     ds = sol.domains[0]
     med, dom, d = s.medium, ds.domain, ds.result.diffusion

@@ -5,15 +5,16 @@ The figures are in the metric of ``popvol compare`` (popvol.metrics): on the pix
 ray crosses the medium, the scale-free relMSE (eps = 0.01 x the squared mean reference luminance
 there), the brightness ratio popvol / reference there, and the same ratio in three bands of the
 reference's luminance (dimmest 50 %, middle 40 %, brightest 10 % of those pixels). Measured with
-the default method (moment + poisson + diffusion stage, the last scattering gathered from 64
-directions, 128 cells, one sample at each pixel centre): relMSE 0.0142, brightness x0.921, bands
-dim x1.025, mid x0.909, bright x0.854; the walk alone (no diffusion stage) relMSE 0.569,
-brightness x1.67.
+the default method (the six-ordinate walk for the sun, every order walked, the last scattering
+gathered from 64 directions, 128 cells, one sample at each pixel centre): relMSE 0.0090,
+brightness x1.068, bands dim x1.021, mid x1.079, bright x1.084. The one-lobe sweeps with their
+diffusion stage (``solver = "sweep"``) relMSE 0.0142, x0.921 (x1.025 / x0.909 / x0.854); walking
+alone (``isotropic = "walk"``) relMSE 0.569, brightness x1.67.
 
 These are popvol's own earlier output, not an independent bound on its accuracy. The accuracy
 GOAL is relMSE <= 0.03 and every band ratio within 5 % of 1 (GOAL_*); this scene misses it now
-(its relMSE is within the goal, but the brightest 10 %, the lit faces, are ~15 % too dark and the
-middle 40 % ~9 %; README, "What it computes, and where it is biased"). The guard's margins are
+(its relMSE is within the goal, but the middle 40 % and the brightest 10 %, the lit faces, are
+~8 % too bright; README, "What it computes, and where it is biased"). The guard's margins are
 derived from the goal: relMSE may rise by half the goal's whole budget (RELMSE_GUARD, about the
 measured figure again) plus the reference's own noise; the overall and band ratios may move by
 0.6 x the goal's 5 % (BAND_GUARD, 0.03) either way. popvol's image is deterministic (one sample
@@ -22,7 +23,7 @@ that makes the default measurably worse, or a band measurably better, must updat
 The accuracy itself, scene by scene, is in docs/ACCURACY.md.
 
 tests/fixtures/regression_cloud.exr is made by scripts/make_test_references.py (65536 spp; its
-own noise in the same metric 5.9e-4, about 1/24 of the relMSE pinned here).
+own noise in the same metric 5.9e-4, about 1/15 of the relMSE pinned here).
 """
 from pathlib import Path
 
@@ -39,8 +40,8 @@ GOAL_RELMSE, GOAL_BAND = 0.03, 0.05
 #: regression guard margins, derived from the goal
 RELMSE_GUARD, BAND_GUARD = 0.5 * GOAL_RELMSE, 0.6 * GOAL_BAND
 #: popvol's last measured figures for the default method (module docstring)
-MEASURED_RELMSE, MEASURED_BRIGHTNESS = 0.0142, 0.921
-MEASURED_BANDS = {"dim": 1.025, "mid": 0.909, "bright": 0.854}
+MEASURED_RELMSE, MEASURED_BRIGHTNESS = 0.0090, 1.068
+MEASURED_BANDS = {"dim": 1.021, "mid": 1.079, "bright": 1.084}
 MEASURED_WALK_RELMSE = 0.569
 
 
@@ -76,9 +77,10 @@ def test_default_method_regression_guard_against_mitsuba(reference, mask):
 
 
 def test_default_is_far_better_than_the_walk_alone(reference, mask):
-    """The walk alone (no diffusion stage) errs far more on the same reference: measured relMSE
-    0.569, brightness x1.67, against the default's 0.0142."""
-    walk = metrics.relmse(render(isotropic="walk"), reference.image, mask)
+    """The one-lobe walk alone (the papers' POP: one lobe per cell, no diffusion stage) errs far
+    more on the same reference: measured relMSE 0.569, brightness x1.67, against the default's
+    0.0090."""
+    walk = metrics.relmse(render(solver="sweep", isotropic="walk"), reference.image, mask)
     assert walk > 5 * MEASURED_RELMSE
 
 
@@ -88,7 +90,7 @@ def test_fixture_reference_loads_and_names_its_scene_portably(reference, mask):
     to the fixture folder, not by a path of the machine that rendered it. The optical-depth mask
     holds the luminance mask's pixels (black background) and a thin fringe more."""
     assert (reference.spp, reference.passes) == (65536, 16)
-    assert reference.noise_relmse(mask) < 0.05 * MEASURED_RELMSE
+    assert reference.noise_relmse(mask) < 0.1 * MEASURED_RELMSE        # 5.9e-4: about 1/15 of it
     lum = metrics.luminance_mask(reference.image)
     assert (lum & ~mask).sum() == 0 and lum.sum() <= mask.sum() <= 1.1 * lum.sum()
     scene = Path(reference.meta["scene"])

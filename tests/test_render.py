@@ -286,11 +286,15 @@ def three_suns(scene):
     return scene
 
 
-def test_combined_source_kernel_equals_numpy_twin():
+@pytest.mark.parametrize("solver", ["ordinates", "sweep"])
+def test_combined_source_kernel_equals_numpy_twin(solver):
     """kernels/source.py against tests/twins.py on a small RGB medium with per-voxel g and empty
     space, lit by two suns, a point light and a broad sun without an unscattered part (a0 < 1,
     as an environment's lights), with the diffusion stage: the suns' walk and diffuse lobes and
-    the point light's diffuse lobe, at the voxels the renderer reads, 0 elsewhere."""
+    the point light's diffuse lobe, at the voxels the renderer reads, 0 elsewhere. With six
+    ordinates (the default) the suns' scattered light is their diffuse lobe (capped at 1) and a
+    broad sun's walk fields are 0; with the one-lobe sweeps the broad sun's light is in its walk
+    fields."""
     scene = blob_scene([0.3, -0.6, 0.74], w=8, h=6, n=16, peak_tau=3.0, albedo=0.9, g=0.5)
     med = cut_blob(n=16, peak_tau=3.0)
     g = np.linspace(0.2, 0.7, 16, dtype=np.float32)[:, None, None] * np.ones(med.shape, np.float32)
@@ -301,9 +305,12 @@ def test_combined_source_kernel_equals_numpy_twin():
     scene.method.isotropic = "diffusion"
     scene.method.handover_scale = 20.0
     scene.method.gather = 0                 # the fields' lobes light every voxel, as in the twin
+    scene.method.solver = solver
     sol = solve(scene)
     assert list(sol.is_point) == [False, False, True, False] and sol.phid.max() > 0
-    assert list(sol.unscattered) == [True, True, True, False] and sol.phi[3].max() > 0
+    assert list(sol.unscattered) == [True, True, True, False]
+    assert (sol.phi[3].max() > 0) == (solver == "sweep") and sol.phid[3].max() > 0
+    assert list(sol.lobe_cap) == ([1.0, 1.0, 0.5, 1.0] if solver == "ordinates" else [0.5] * 4)
     source = render_inputs(scene, sol)[4][0]
     twin = ref.in_scattering_source(scene, sol)
     assert source.shape == scene.medium.shape + (3,) and source.dtype == np.float32

@@ -1,5 +1,8 @@
 """Warm start between animation frames (pipeline.solve's ``warm``): the diffusion stage's
-conjugate gradients start from the previous frame's fluence; the walk always starts cold.
+conjugate gradients start from the previous frame's fluence; the walk always starts cold. A
+diffusion stage is what point lights have, and suns with the one-lobe sweeps (``solver =
+"sweep"``), which these scenes use; a sun walked with six ordinates (the default) has none, so
+there is nothing to warm-start (test_a_six_ordinate_sun_starts_cold).
 
 The bound asserted for a warm frame against the cold one: relMSE of the images <= TOL^2 (an RMS
 relative pixel difference of TOL, the method's default tolerance 3e-3: the walk itself stops
@@ -23,13 +26,13 @@ SUN = {"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": [5
 POINT = {"type": "point", "position": [0.3, 1.6, 0.4], "intensity": [2.0, 2.0, 2.0]}
 
 
-def scene(t=1.0, seed=7, lights=(SUN, POINT), resolution=N, isotropic="diffusion"):
+def scene(t=1.0, seed=7, lights=(SUN, POINT), resolution=N, isotropic="diffusion", solver="sweep"):
     return popvol.scene_from_dict({
         "medium": {"type": "procedural", "resolution": N, "seed": seed, "time": t, "scale": 40.0,
                    "albedo": 0.99, "g": 0.85},
         "lights": list(lights),
         "camera": {"origin": [0.0, 0.1, 2.4], "target": [0.0, 0.72, 0.0], "fov": 40.0, "width": 48, "height": 32},
-        "method": {"resolution": resolution}, "experimental": {"isotropic": isotropic}})
+        "method": {"resolution": resolution}, "experimental": {"isotropic": isotropic, "solver": solver}})
 
 
 def domains(sol):
@@ -130,6 +133,18 @@ def test_a_mismatched_previous_solution_falls_back_to_cold(case):
     for d in domains(warm):
         assert d["warm"] is False and d["warm_note"].startswith("cold") and note in d["warm_note"]
     np.testing.assert_allclose(warm.phid, cold.phid, rtol=0, atol=1e-6 * float(cold.phid.max()))
+
+
+def test_a_six_ordinate_sun_starts_cold():
+    """With the default solver the sun walks every order (no conjugate gradients): it starts cold,
+    saying why, and the point light beside it is warm-started; the frame is the cold one."""
+    prev = popvol.solve(scene(1.0, solver="ordinates"))
+    s = scene(1.0 + 1 / 24, solver="ordinates")
+    cold, warm = popvol.solve(s), popvol.solve(s, warm=prev)
+    sun, point = domains(warm)
+    assert sun["warm"] is False and "no diffusion solve" in sun["warm_note"]
+    assert point["warm"] and point["diffusion_iterations"] < domains(cold)[1]["diffusion_iterations"]
+    assert_same_frame(s, warm, cold)
 
 
 def test_both_stop_on_the_true_residual():

@@ -10,12 +10,13 @@ compiles the kernels and fills the caches.
   (pixels x spp) per second at 640x360 on the same clouds (the ray march, without the gather);
 - scenes, end to end, per stage (load, resample, propagate, diffusion, fields, render, total):
   the built-in demo, the WDAS cloud under the sun (default method, without the gathered last
-  bounce, and the walk alone) and under sun + 8-direction sky, and the procedural field of small
+  bounce, with the one-lobe sweeps and their diffusion stage, and the one-lobe walk alone) and
+  under sun + 8-direction sky, and the procedural field of small
   cumulus under the sun at 256 cells and lit by a point light inside it at 128 and 256 cells
   (96x64); the render stage
   includes the gather. Beside them the sweeps' work rate: cells that sent a packet per second of the
-  propagate stage (a cell that sends splits its packet six ways; the throughput rows count
-  every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
+  propagate stage (a cell that sends splits its packet six ways; with six ordinates, packets
+  sent, up to six per cell; the throughput rows count every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
   (``popvol/bench_scenes``) and name their volume by file name only; it is looked up in the
   data folder (:func:`find_data`).
   A scene whose volume is missing or unreadable is reported as skipped, with the reason.
@@ -68,9 +69,11 @@ SCENES = {
                  "WDAS cloud under the sun, default method"),
     "wdas_sun_lobes": ("wdas_sun.toml", {"gather": 0}, {"width": 160, "height": 90, "resolution": 64},
                        "WDAS cloud under the sun, without the gathered last bounce (gather = 0)"),
-    "wdas_sun_walk": ("wdas_sun.toml", {"isotropic": "walk"},
+    "wdas_sun_sweep": ("wdas_sun.toml", {"solver": "sweep"}, {"width": 160, "height": 90, "resolution": 64},
+                       "WDAS cloud under the sun, one-lobe sweeps with the diffusion stage (solver = sweep)"),
+    "wdas_sun_walk": ("wdas_sun.toml", {"solver": "sweep", "isotropic": "walk"},
                       {"width": 160, "height": 90, "resolution": 64},
-                      "WDAS cloud under the sun, the walk alone (isotropic = walk)"),
+                      "WDAS cloud under the sun, the one-lobe walk alone (solver = sweep, isotropic = walk)"),
     "wdas_sun_sky": ("wdas_sun_sky.toml", {},
                      {"width": 160, "height": 90, "resolution": 64, "environment_resolution": 32},
                      "WDAS cloud under sun + 8-direction sky (9 domains)"),
@@ -373,7 +376,7 @@ def bench_scene(load, repeat: int, source: str) -> dict:
                 sends.append(sent / solution.seconds["propagate"])
     d = [ds.result for ds in solution.domains]
     m, cam = scene.method, scene.camera
-    return {"scene": source, "method": f"{m.rule} + {m.decay} + {m.isotropic}, gather {m.gather}",
+    return {"scene": source, "method": f"{m.solver}: {m.rule} + {m.decay} + {m.isotropic}, gather {m.gather}",
             "image": [cam.width, cam.height], "resolution": m.resolution,
             "environment_resolution": m.environment_resolution,
             "domains": len(solution.domains), "domain_shape": list(solution.domains[0].domain.shape),
@@ -447,8 +450,8 @@ def _fmt(f: dict, scale=1.0, spec=".3g") -> str:
 
 
 def print_report(res: dict, console) -> None:
-    """The figures as two small tables (rich), one column per size or scene: median (min-max)
-    over the runs."""
+    """The figures as small tables (rich), one column per size or scene (at most five scenes a
+    table): median (min-max) over the runs."""
     from rich.table import Table
     mc = res["machine"]
     cores = f", {mc['physical_cores']} cores" if mc["physical_cores"] else ""
@@ -476,8 +479,10 @@ def print_report(res: dict, console) -> None:
     t.add_row("peak MB", *[f"{p['peak_rss_mb']:.0f}" for p in prop])
     console.print(t)
 
-    rows = {k: r for k, r in res["scenes"].items() if "skipped" not in r}
-    if rows:
+    measured = [(k, r) for k, r in res["scenes"].items() if "skipped" not in r]
+    per_table = 5                    # scene columns per table, so that a terminal shows their names
+    for start in range(0, len(measured), per_table):
+        rows = dict(measured[start:start + per_table])
         t = Table(title="scenes end to end, seconds", title_justify="left")
         t.add_column("")
         for name in rows:

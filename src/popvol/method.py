@@ -113,28 +113,32 @@ def _is_zero(value) -> bool:
 KNOBS: tuple[Knob, ...] = (
     Knob("resolution", 128, (2, 4096), "Cells along the longest side of each light's propagation domain.",
          cli=("render", "compare")),
-    Knob("solver", "sweep", ("sweep", "jacobi", "binned", "ordinates"), "Propagation solver.",
-         "Gauss-Seidel sweeps along the light (fast), the Jacobi wavefront (reference semantics: "
-         "each iteration moves every packet one cell), the Jacobi wavefront with each cell's light "
-         "kept in 17 fixed anisotropy bins instead of one merged lobe (linear in the light, so the "
-         "answer does not depend on the schedule; 5-40x slower), or Gauss-Seidel sweeps with one "
-         "lobe per lattice direction, in which light keeps its direction until it scatters, so that "
-         "light scattered sideways keeps going sideways, every order walked with no diffusion stage "
-         "(needs `rule = \"moment\"`; docs/METHOD.md, \"Six ordinates\"). Point lights always "
-         "sweep.",
+    Knob("solver", "ordinates", ("ordinates", "sweep", "jacobi", "binned"),
+         "Propagation solver of suns and environments' lights.",
+         "Gauss-Seidel sweeps with one lobe per lattice direction, in which light keeps its direction "
+         "until it scatters, so that light scattered sideways keeps going sideways, every order "
+         "walked with no diffusion stage (needs `rule = \"moment\"`; docs/METHOD.md, \"Six "
+         "ordinates\"); or one lobe per cell about the light's axis, with the diffusion stage of "
+         "`isotropic`: Gauss-Seidel sweeps along the light (faster on small scenes, further from "
+         "Mitsuba: docs/ACCURACY.md), the Jacobi wavefront (reference semantics: each iteration "
+         "moves every packet one cell), or the Jacobi wavefront with each cell's light kept in 17 "
+         "fixed anisotropy bins instead of one merged lobe (linear in the light, so the answer does "
+         "not depend on the schedule; 5-40x slower). Point lights always sweep one lobe.",
          experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
-         "(the paper's rule).", experimental=True),
+         "(the paper's rule, with a one-lobe `solver` only).", experimental=True),
     Knob("decay", "poisson", ("poisson", "paper"), "Anisotropy decay over a step s.",
          "exp(-sigma_s s (1 - g)) or g^(sigma_s s) (supplement Eq. 12; needs g >= 0).",
          experimental=True),
     Knob("isotropic", "diffusion", ("diffusion", "walk"), "What happens to light whose lobe has spread.",
          "It is handed to a diffusion solve with the physical coefficient D = 1 / (3 sigma_tr) "
          "(`popvol/diffusion.py`), or it keeps walking cell by cell (the papers' POP); see the "
-         "README on bias. A sun walked with `solver = \"ordinates\"` always walks.", experimental=True),
+         "README on bias. For point lights and the one-lobe solvers: a sun or an environment's light "
+         "walked with `solver = \"ordinates\"` (the default) always walks.", experimental=True),
     Knob("handover_scale", 2.0, (0.0, 100.0), "Hand-over threshold of the diffusion stage.",
-         "With `isotropic = \"diffusion\"`: a packet leaves the walk when its anisotropy "
+         "With `isotropic = \"diffusion\"` (point lights, and suns with a one-lobe `solver`): a "
+         "packet leaves the walk when its anisotropy "
          "\\|a\\| < handover_scale * (1 - exp(-sigma_tr h)), h the cell size, sigma_tr = sigma_a + "
          "sigma_s (1 - g): a threshold in the medium's transport mean free paths, so images do not "
          "change with the grid.", experimental=True),
@@ -198,8 +202,9 @@ class _MethodBase:
         for k in KNOBS:
             setattr(self, k.name, k.check(getattr(self, k.name), src))
         if self.solver == "ordinates" and self.rule != "moment":
-            raise PopvolError(f"{src}: experimental.solver = 'ordinates' needs experimental.rule = 'moment' "
-                              f"(got {self.rule!r}): its side parts carry their own slice's mean cosine")
+            raise PopvolError(f"{src}: experimental.rule = {self.rule!r} needs experimental.solver = 'sweep', "
+                              "'jacobi' or 'binned' (the default, 'ordinates', takes rule = 'moment' only: its "
+                              "side parts carry their own slice's mean cosine)")
         return self
 
     def experimental_changes(self) -> dict:
