@@ -7,9 +7,10 @@ decayed (supplement Eq. 12 or its Poisson form), and adds the visit to the fluen
 a. Gauss-Seidel sweeps along the principal ordinate (kernels/propagation.py for a rectilinear
 domain, kernels/spherical.py for a point light's) or a Jacobi wavefront repeat this until the
 power still in flight is below the tolerance; the experimental binned wavefront
-(kernels/binned.py) keeps each cell's light in fixed anisotropy bins instead of one merged lobe,
-and the experimental six-ordinate walk (kernels/ordinates.py, by sweeps) one lobe per lattice
-direction, so that light sent sideways keeps going sideways. With the diffusion stage, packets
+(kernels/binned.py) keeps each cell's light in fixed anisotropy bins instead of one merged lobe.
+The six-ordinate walk (kernels/ordinates.py, by sweeps; the default for a sun's and an
+environment's light) keeps one lobe per lattice direction instead, so that light sent sideways
+keeps going sideways, and walks every order. With the one-lobe walks' diffusion stage, packets
 whose lobe has spread leave the walk (docs/METHOD.md, "Hand-over").
 """
 from __future__ import annotations
@@ -270,7 +271,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     ordinate o the light that scattered in the cell's half of its way in along e_o
     (kernels/ordinates.py)."""
     shape = Th.shape
-    check_memory(2 * 12 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates')",
+    check_memory(2 * 12 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates', the default)",
                  f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment, twice)")
     table = ordinate_table()
     W = np.zeros((12,) + shape, np.float32)
