@@ -26,6 +26,7 @@ the ratio map popvol / reference) in docs/figures/accuracy/.
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 from pathlib import Path
 
@@ -172,8 +173,8 @@ def means(measured: list[dict], only) -> list[str]:
     for label, _overrides, resolutions in VARIANTS:
         figs = []
         for n in resolutions:
-            v = sorted(rows[label, n]["relmse"] for rows in measured)
-            figs.append(f"{sum(v) / len(v):.3f} ({v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2]):.3f}) at {n}")
+            v = [rows[label, n]["relmse"] for rows in measured]
+            figs.append(f"{statistics.mean(v):.3f} ({statistics.median(v):.3f}) at {n}")
         parts.append(f"{label} {', '.join(figs)}")
     return [f"Mean (median) relMSE over the {len(measured)} scenes: " + "; ".join(parts) + ".", ""]
 
