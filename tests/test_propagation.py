@@ -487,6 +487,31 @@ def test_domain_to_world_equals_numpy_twin(rng, n_fields):
                                                             med.voxel_size, needed), rtol=1e-5, atol=1e-6)
 
 
+def test_cells_read_are_the_stencils_of_the_voxels_mapped(rng):
+    """kernels.sampling.cells_read against its NumPy twin on a rotated domain; and what it is
+    for: domain_to_world on the needed voxels reads no cell outside it (a field that is NaN
+    there maps to finite values), while a NaN in any one cell inside reaches some voxel."""
+    from popvol.domains import directional_domain
+    from popvol.kernels.sampling import domain_to_world
+    med = Medium(np.ones((10, 12, 9), np.float32), [0.1, 0.08, 0.12], [0.3, -0.2, 0.1])
+    dom = directional_domain(med, np.array([0.3, -0.8, 0.52]), 14)
+    needed = rng.random(med.shape) < 0.05
+    read = dom.cells_read(med, needed)
+    np.testing.assert_array_equal(read, ref.cells_read(dom.frame, dom.origin, dom.h, med.origin, med.voxel_size,
+                                                       needed, dom.shape))
+    assert 0.05 < read.mean() < 0.9
+
+    def mapped(field):
+        out = np.zeros(med.shape, np.float32)
+        domain_to_world((field,), dom.frame, dom.origin, dom.h, med.origin, med.voxel_size, (out,), needed)
+        return out[needed]
+    assert np.all(np.isfinite(mapped(np.where(read, 1.0, np.nan).astype(np.float32))))
+    for cell in np.argwhere(read)[rng.choice(int(read.sum()), 5, replace=False)]:
+        field = np.ones(dom.shape, np.float32)
+        field[tuple(cell)] = np.nan
+        assert not np.all(np.isfinite(mapped(field)))
+
+
 @pytest.mark.parametrize("diffusion_resolution", [16, 8])
 def test_a_suns_fields_on_the_world_grid_are_its_domains_own(diffusion_resolution):
     """A sun's walk and diffusion fields on the medium's grid, as the solve writes them (in one

@@ -213,13 +213,17 @@ def _cone_lobe(a_s):
     return fr, sd, bk, mf, mb, hg.side_wedge_mean_cosine(a_s)
 
 
-def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
+                    runs=None):
     """One Gauss-Seidel sweep of the six-ordinate walk (twin of kernels.ordinates.ordinates_sweep),
     cell by cell, in place, in float64. Cells in order of k, i, j (each increasing if its
     ``forward_*``); at each cell first the light that scattered on its way in (slots 6..11, as
     ordinates_step's), then the ordinates o = 0..5 (+d, -d, +u, -u, +v, -v) in turn: a packet
-    above ``w_min`` is taken, visits (phi, F), and is sent as ordinates_step's (exact HG shares):
-    its parts moved into their pending slots, what leaves the grid tallied. Returns the number of packets sent."""
+    above ``w_min`` is taken and, at a cell that starts a run of ``runs[o]`` skipped cells
+    (:func:`skip_runs`; None: none), moved whole to the cell after the run (or tallied where
+    that lies outside); else it visits (phi, F) and is sent as ordinates_step's (exact HG
+    shares): its parts moved into their pending slots, what leaves the grid tallied. Returns
+    the number of packets sent."""
     n0, n1, n2 = Th.shape
     Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
     sent_packets = 0
@@ -260,6 +264,11 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
                     wa = float(Wa[o, k, i, j])
                     W[o, k, i, j] = Wa[o, k, i, j] = 0.0
                     sent_packets += 1
+                    if runs is not None and runs[o, k, i, j] > 0:
+                        c = [k, i, j]
+                        c[o // 2] += (1 - 2 * (o % 2)) * int(runs[o, k, i, j])
+                        deliver(w, wa / w, o, tuple(c))
+                        continue
                     sign = 1.0 - 2.0 * (o % 2)
                     phi[k, i, j] += w * inv_area
                     F[o // 2, k, i, j] += sign * wa * inv_area
@@ -353,6 +362,23 @@ def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, ph
         R[k, i, j] += e
         Ra[k, i, j] += ea
     return float(R.sum(dtype=np.float64))
+
+
+def skip_runs(skip):
+    """Twin of kernels.cells.skip_runs: int (6,) + skip's shape, at each cell where ``skip``
+    the number of skipped cells in a row from it across face o (+d, -d, +u, -u, +v, -v),
+    itself included; 0 elsewhere. Each count by walking the line cell by cell."""
+    skip = np.asarray(skip, bool)
+    runs = np.zeros((6,) + skip.shape, int)
+    for o in range(6):
+        axis, step = o // 2, 1 - 2 * (o % 2)
+        for start in np.argwhere(skip):
+            c, n = list(start), 0
+            while 0 <= c[axis] < skip.shape[axis] and skip[tuple(c)]:
+                n += 1
+                c[axis] += step
+            runs[(o,) + tuple(start)] = n
+    return runs
 
 
 def trilinear(grid, q):
@@ -813,6 +839,23 @@ def domain_to_world(field, frame, origin, h, world_origin, voxel, needed):
     q = (world_origin + idx * voxel - origin) @ np.asarray(frame).T / h - 0.5
     q = np.clip(q, 0, np.asarray(field.shape) - 1)
     return np.where(needed, trilinear(field, q).reshape(needed.shape), 0.0)
+
+
+def cells_read(frame, origin, h, world_origin, voxel, needed, shape):
+    """Twin of kernels.sampling.cells_read: bool ``shape``, True at the 8 corners of the
+    trilinear stencil (clamped to the edge, as :func:`domain_to_world`'s) of every world voxel
+    centre where ``needed``."""
+    idx = np.argwhere(needed)
+    q = (world_origin + idx * voxel - origin) @ np.asarray(frame).T / h - 0.5
+    n = np.asarray(shape)
+    qc = np.clip(q, 0, n - 1)
+    i0 = np.minimum(np.floor(qc).astype(int), np.maximum(n - 2, 0))
+    i1 = np.minimum(i0 + 1, n - 1)
+    out = np.zeros(shape, bool)
+    for corner in np.ndindex(2, 2, 2):
+        c = np.where(np.array(corner, bool), i1, i0)
+        out[c[:, 0], c[:, 1], c[:, 2]] = True
+    return out
 
 
 def spherical_to_world(field, dom, world_origin, voxel, needed):

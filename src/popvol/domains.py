@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import PopvolError
-from .kernels.sampling import resample
+from .kernels.sampling import cells_read, resample
 from .medium import Medium
 
 #: Working-set bytes per domain cell (float32 arrays): the solvers hold Th, Dh, in-flight W and
@@ -87,6 +87,15 @@ class DirectionalDomain:
         """World position of continuous cell index q (..., 3)."""
         return self.origin + (np.asarray(q) + 0.5) * self.h @ self.frame
 
+    def cells_read(self, medium: Medium, seen: np.ndarray) -> np.ndarray:
+        """bool (the domain's shape): the cells whose fields are read when they are mapped onto
+        the ``seen`` voxels (bool, the medium's shape: pipeline.voxels_seen) of ``medium``,
+        the corners of those voxels' trilinear stencils (kernels.sampling.cells_read)."""
+        out = np.zeros(self.shape, np.bool_)
+        cells_read(seen, np.asarray(self.frame, np.float64), np.asarray(self.origin, np.float64), float(self.h),
+                   np.asarray(medium.origin, np.float64), np.asarray(medium.voxel_size, np.float64), out)
+        return out
+
 
 def directional_domain(medium: Medium, direction: np.ndarray, resolution: int, block: int = 1,
                        crop: bool = True) -> DirectionalDomain:
@@ -111,6 +120,21 @@ def directional_domain(medium: Medium, direction: np.ndarray, resolution: int, b
     check_memory(dom.n_cells * BYTES_PER_DOMAIN_CELL, f"{medium.source}: method.resolution = {resolution}",
                  f"a light domain of {dom.shape[0]}x{dom.shape[1]}x{dom.shape[2]} cells")
     return dom
+
+
+def grow(mask: np.ndarray) -> np.ndarray:
+    """bool, ``mask``'s shape: ``mask`` and the 26 neighbours of each cell set in it (a
+    separable 3x3x3 dilation)."""
+    m = np.asarray(mask, np.bool_)
+    for axis in range(3):
+        d = m.copy()
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        d[tuple(lo)] |= m[tuple(hi)]
+        d[tuple(hi)] |= m[tuple(lo)]
+        m = d
+    return m
 
 
 _OCCUPIED: list = []      # one entry: (density array, its column ends), see occupied_ends

@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from .diffusion import solve_diffusion, warm_guess
-from .domains import BYTES_PER_DOMAIN_CELL, available_memory, check_memory, small_pages
+from .domains import BYTES_PER_DOMAIN_CELL, available_memory, check_memory, grow, small_pages
 from .errors import PopvolError
 from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
@@ -66,8 +66,12 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     transport = medium.transport_medium() if transport is None else transport
     domain = light.domain(medium, method) if domain is None else domain
     optics = domain.resample(transport, channel)
+    # the cells whose fields are mapped onto the voxels the renderer reads: the six-ordinate
+    # walk crosses empty cells outside them without visiting them (docs/METHOD.md, "Skipping
+    # empty space")
+    read = domain.cells_read(medium, seen_voxels(medium)) if method.solver == "ordinates" else None
     t1 = time.perf_counter()
-    walk = domain.walk(optics, method, progress)
+    walk = domain.walk(optics, method, progress, read)
     if transport is not medium and walk.direct is not None:
         # the unscattered light crosses the true density (docs/METHOD.md, "Optically thick voxels")
         replace_direct(walk, domain.direct_fluence(domain.resample(medium, channel)[0]))
@@ -164,16 +168,7 @@ def voxels_seen(density: np.ndarray) -> np.ndarray:
     """bool (nx, ny, nz): the voxels the renderer can read fields from. It reads them only where
     the density is > 0, by trilinear interpolation, so the voxels within one voxel (26
     neighbours) of a non-empty one; fields elsewhere are left 0."""
-    m = density > 0
-    for axis in range(3):                  # separable 3x3x3 dilation
-        d = m.copy()
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
-        d[tuple(lo)] |= m[tuple(hi)]
-        d[tuple(hi)] |= m[tuple(lo)]
-        m = d
-    return m
+    return grow(density > 0)
 
 
 def seen_voxels(medium) -> np.ndarray:

@@ -61,7 +61,9 @@ class WalkResult:
     (2, domain shape), power and first moment handed over to the diffusion stage [W] (None
     without it). diffusion: the diffusion.DiffusionResult once the pipeline has solved it.
     flux: float32 (3, domain shape), the fluence's first moment vector in the domain's frame
-    (the six-ordinate walk only; phia is then its component along the axis d).
+    (the six-ordinate walk only; phia is then its component along the axis d). A six-ordinate
+    walk given the cells read leaves phi, phia and flux 0 in the empty cells it crossed
+    without visits (walk.skipped_cells); ``direct`` is the unscattered light everywhere.
     """
 
     phi: np.ndarray

@@ -22,7 +22,7 @@ import numba
 import numpy as np
 
 from . import hg
-from .domains import check_memory
+from .domains import check_memory, grow
 from .kernels import binned as KB
 from .kernels import cells as KC
 from .kernels import ordinates as KO
@@ -258,8 +258,23 @@ def row_groups(row_work: np.ndarray, visits: float, forward_u: bool, lanes: int)
     return np.unique(np.concatenate(([0], np.clip(cuts, 1, n1 - 1), [n1]))).astype(np.int64)
 
 
-def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
-                   ) -> tuple[int, float, float, int]:
+def skipped_cells(Th, Dh, Sh, read) -> np.ndarray:
+    """bool (the domain's shape): the cells the six-ordinate walk crosses without visiting them
+    (docs/METHOD.md, "Skipping empty space"): empty (Th = Dh = Sh = 1: a packet crosses it
+    unchanged), their fields not ``read`` (bool, the domain's shape), and none of their 26
+    neighbours holding medium, so that a run of them ends at an empty cell."""
+    empty = (Th == 1) & (Dh == 1) & (Sh == 1)
+    return empty & ~read & ~grow(~empty)
+
+
+def rows_pending(W) -> np.ndarray:
+    """uint8 (n_d, n_u): 1 where a row (k, i) of the six-ordinate walk's pending state W (float32
+    (12, n_d, n_u, n_v)) holds a packet, which the sweeps then keep (kernels/ordinates.py)."""
+    return np.any(W != 0, axis=(0, 3)).astype(np.uint8)
+
+
+def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
+                   skip=None) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
     domain's shape, :func:`scatter_factor`), every order of scattering, by thresholded
     Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
@@ -267,12 +282,17 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     / -d every sweep, the order along u every second and along v every fourth. Returns
     (sweeps, power in flight, power the injection's half step absorbed, packets sent).
     Accumulates into phi, flux (float32 (3,) + shape, the first moment in the domain's frame)
-    and tally. The pending state W, Wa is float32 (12,) + shape: the six ordinates, then per
-    ordinate o the light that scattered in the cell's half of its way in along e_o
-    (kernels/ordinates.py)."""
+    and tally, except in the ``skip`` cells (:func:`skipped_cells`; None: none), which a packet
+    crosses in one step per run of them (kernels.cells.skip_runs, int16 (6,) + shape). The
+    pending state W, Wa is float32 (12,) + shape: the six ordinates, then per ordinate o the
+    light that scattered in the cell's half of its way in along e_o (kernels/ordinates.py)."""
     shape = Th.shape
-    check_memory(2 * 12 * int(np.prod(shape)) * 4, "method.resolution (with experimental.solver = 'ordinates', the default)",
+    check_memory((2 * 12 * 4 + 6 * 2) * int(np.prod(shape)),
+                 "method.resolution (with experimental.solver = 'ordinates', the default)",
                  f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment, twice)")
+    runs = np.zeros((6,) + shape, np.int16)
+    if skip is not None:
+        KC.skip_runs(np.ascontiguousarray(skip, np.bool_), runs)
     table = ordinate_table()
     W = np.zeros((12,) + shape, np.float32)
     Wa = np.zeros_like(W)
@@ -281,6 +301,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     Wa[0, 0] = W[0, 0] * np.float32(a0) * Dh[0]
     absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
     injected = float(np.sum(injection, dtype=np.float64))
+    pending = rows_pending(W)
 
     row_work = np.zeros(shape[1])
     lanes = numba.get_num_threads()
@@ -289,7 +310,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         # the rows cut into one group per thread by the work each row did in the sweep before
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
-                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work)
+                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, runs, pending)
         return K.total_energy(W.reshape((12 * shape[0],) + shape[1:])), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * int(np.prod(shape)), injected, progress)
@@ -299,8 +320,8 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
              max_iterations: int = 0, periodic: bool = False, progress=None,
-             handover: tuple[float, np.ndarray] | None = None, scatter: np.ndarray | None = None
-             ) -> WalkResult:
+             handover: tuple[float, np.ndarray] | None = None, scatter: np.ndarray | None = None,
+             read: np.ndarray | None = None) -> WalkResult:
     """Walk light injected into slice k = 0 of a rectilinear domain until (almost) all of it
     has left.
 
@@ -329,6 +350,10 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         scatter: float32 (n_d, n_u, n_v) :func:`scatter_factor`, which the six-ordinate walk
             needs (the share of a packet that crosses a transfer unscattered); the other
             solvers ignore it.
+        read: bool (n_d, n_u, n_v): the cells whose fields are read. The six-ordinate walk
+            crosses the empty cells outside it without visiting them (:func:`skipped_cells`),
+            so their phi and flux stay 0; None: every cell is visited. The other solvers
+            ignore it.
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -372,8 +397,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             raise ValueError("the six-ordinate walk needs scatter (walk.scatter_factor)")
         flux = np.zeros((3,) + shape, np.float32)
         Sh = np.ascontiguousarray(scatter, np.float32)
+        skip = skipped_cells(Th, Dh, Sh, read) if read is not None else None
         it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
-                                                              tally, target, cap, progress)
+                                                              tally, target, cap, progress, skip)
         phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,

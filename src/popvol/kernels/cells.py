@@ -12,8 +12,10 @@ expressions they replace made five to ten domain-sized float64 temporaries each)
 - :func:`direct_fluence`: the unscattered light of a sun at the cell centres (Eq. 22);
 - :func:`hand_over_pending`: the packets still pending in the diffusion region when the walk
   stops go to the diffusion stage;
-- :func:`face_neighbour`: the cell across one of a cell's six faces (the diffusion stage's
-  stencil and the six-ordinate walk's steps).
+- :func:`face_neighbour`, :func:`cell_along`: the cell across one of a cell's six faces (the
+  diffusion stage's stencil and the six-ordinate walk's steps), or m cells that way (the
+  six-ordinate walk's crossing of a run of skipped cells);
+- :func:`skip_runs`: those runs.
 
 The arithmetic is float64, the arrays float32. NumPy twins: tests/twins.py (medium_factors,
 handover_factor, direct_fluence, hand_over_pending).
@@ -31,15 +33,22 @@ STOPPED = 1e30
 
 
 @nb.njit(inline="always", cache=True)
-def face_neighbour(k, i, j, n):
-    """The cell across face ``n`` of cell (k, i, j), faces in the order +k, -k, +i, -i, +j, -j
-    (a rectilinear domain's +d, -d, +u, -u, +v, -v); it may lie outside the grid."""
-    step = 1 - 2 * (n % 2)
+def cell_along(k, i, j, n, m):
+    """The cell ``m`` cells from cell (k, i, j) across its face ``n``, faces in the order +k,
+    -k, +i, -i, +j, -j (a rectilinear domain's +d, -d, +u, -u, +v, -v); it may lie outside the
+    grid."""
+    step = m * (1 - 2 * (n % 2))
     if n < 2:
         return k + step, i, j
     if n < 4:
         return k, i + step, j
     return k, i, j + step
+
+
+@nb.njit(inline="always", cache=True)
+def face_neighbour(k, i, j, n):
+    """The cell across face ``n`` of cell (k, i, j) (:func:`cell_along`, one cell)."""
+    return cell_along(k, i, j, n, 1)
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -131,3 +140,40 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q):
                     absorbed += w * (1.0 - th)
         part[k] = absorbed
     return ordered_sum(part)
+
+
+#: the longest run one entry of :func:`skip_runs` holds (int16); a longer run is crossed in
+#: hops of at most this many cells
+MAX_RUN = 32767
+
+
+@nb.njit(cache=True)
+def _runs_along(skip, ahead, behind):
+    """Along one line of cells (1-D views): ahead[x], behind[x] = how many cells in a row from x
+    toward higher, lower x are skipped (``skip``), x included, at most MAX_RUN; 0 if x is not."""
+    n = skip.shape[0]
+    r = 0
+    for x in range(n - 1, -1, -1):
+        r = min(r + 1, MAX_RUN) if skip[x] else 0
+        ahead[x] = r
+    r = 0
+    for x in range(n):
+        r = min(r + 1, MAX_RUN) if skip[x] else 0
+        behind[x] = r
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def skip_runs(skip, runs):
+    """runs int16 (6, n_d, n_u, n_v): at a cell where ``skip`` (bool (n_d, n_u, n_v)), how
+    many cells in a row from it across face o (o in :func:`cell_along`'s order, itself
+    included) are skipped, at most MAX_RUN; 0 where it is not skipped. Lines along d are the
+    threads' by row u, lines along u and v by slice k."""
+    n0, n1, n2 = skip.shape
+    for i in nb.prange(n1):
+        for j in range(n2):
+            _runs_along(skip[:, i, j], runs[0, :, i, j], runs[1, :, i, j])
+    for k in nb.prange(n0):
+        for j in range(n2):
+            _runs_along(skip[k, :, j], runs[2, k, :, j], runs[3, k, :, j])
+        for i in range(n1):
+            _runs_along(skip[k, i, :], runs[4, k, i, :], runs[5, k, i, :])

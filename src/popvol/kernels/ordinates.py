@@ -38,6 +38,14 @@ cell later in the sweep's order is sent on in the same sweep, so light crosses t
 every ordinate that the sweep's order follows in one sweep. One cell's send is :func:`_send`;
 the sweep runs it on threads as a pipeline of row groups that gives the bits of one thread.
 
+Empty space (docs/METHOD.md, "Skipping empty space"): ``runs`` (int16 (6, n_d, n_u, n_v),
+kernels.cells.skip_runs) holds, at a skipped cell (empty, with no medium among its 26
+neighbours, its fields read by no one: walk.skipped_cells), how many skipped cells in a row
+lie from it along each e_o. A packet there crosses them in one step, unchanged (nothing
+scatters or is absorbed in them), to the empty cell after the run or out of the domain, and
+visits none of them: their phi and F stay 0. ``pending`` (uint8 (n_d, n_u)) marks the rows
+that hold a packet; a sweep visits only those, which changes no bit.
+
 Fields (per unit area, accumulated at every visit, Eq. 14): phi float32 (n_d, n_u, n_v) the
 fluence, F float32 (3, n_d, n_u, n_v) its first moment (the sum over ordinates of W a e_o) in
 the domain's frame. Tallies (float64 (4,)): reflected, transmitted, side escaped, absorbed.
@@ -48,7 +56,7 @@ import numba as nb
 import numpy as np
 
 from . import ON_ITS_OWN
-from .cells import face_neighbour
+from .cells import cell_along, face_neighbour
 from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
 from .reduction import add_parts
 
@@ -59,10 +67,11 @@ PF, PS, PB, MF, MS, MB, MJ = range(7)
 
 
 @nb.njit(inline="always", cache=True)
-def _deliver(W, Wa, Th, q, k2, i2, j2, e, a, refl, trans, side_out, absorbed):
+def _deliver(W, Wa, Th, pending, q, k2, i2, j2, e, a, refl, trans, side_out, absorbed):
     """Part ``e`` (anisotropy ``a``) into ordinate q of cell (k2, i2, j2), after that cell's half
-    step, or tallied where it leaves the domain: through the face k = 0 (reflected), the far
-    face (transmitted) or a lateral face (side). Returns the four tallies."""
+    step, its row marked ``pending``, or tallied where it leaves the domain: through the face
+    k = 0 (reflected), the far face (transmitted) or a lateral face (side). Returns the four
+    tallies."""
     n0, n1, n2 = Th.shape
     if k2 < 0:
         refl += e
@@ -76,6 +85,7 @@ def _deliver(W, Wa, Th, q, k2, i2, j2, e, a, refl, trans, side_out, absorbed):
         e *= th2
         W[q, k2, i2, j2] += e
         Wa[q, k2, i2, j2] += e * a
+        pending[k2, i2] = 1
     return refl, trans, side_out, absorbed
 
 
@@ -111,10 +121,12 @@ def _part(o, n, cone):
 
 
 @nb.njit(**ON_ITS_OWN)
-def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
+def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, runs, pending, k, i, j, tallies):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
-    docstring; :func:`ordinates_sweep`). ``tallies`` = (reflected, transmitted, side escaped,
-    absorbed, packets sent) so far; returns them updated."""
+    docstring; :func:`ordinates_sweep`); a packet in a cell that starts a run of skipped cells
+    along its ordinate (``runs``) crosses the run at once. A packet left pending marks its
+    row in ``pending``. ``tallies`` = (reflected, transmitted, side escaped, absorbed, packets
+    sent) so far; returns them updated."""
     refl, trans, side_out, absorbed, sent_packets = tallies
     n0, n1, n2 = Th.shape
     th = Th[k, i, j]
@@ -137,11 +149,21 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
     for o in range(6):
         w = W[o, k, i, j]
         if w <= w_min:
+            if w > 0.0:
+                pending[k, i] = 1
             continue
         wa = Wa[o, k, i, j]
         W[o, k, i, j] = 0.0
         Wa[o, k, i, j] = 0.0
         sent_packets += 1
+        run = runs[o, k, i, j]
+        if run > 0:
+            # a skipped cell (empty, its fields read by no one): the packet crosses the run of
+            # them along e_o unchanged and arrives at the empty cell after it, or leaves
+            k2, i2, j2 = cell_along(k, i, j, o, run)
+            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, pending, o, k2, i2, j2, w, wa / w, refl, trans, side_out,
+                                                       absorbed)
+            continue
         sign = 1.0 - 2.0 * (o % 2)
         phi[k, i, j] += w * inv_area
         F[o // 2, k, i, j] += sign * wa * inv_area
@@ -155,7 +177,7 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
         D = dh * Dh[k2, i2, j2] if inside else dh
         e = sent * S
         if e > 0.0:
-            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, o, k2, i2, j2, e, a, refl, trans, side_out,
+            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, pending, o, k2, i2, j2, e, a, refl, trans, side_out,
                                                        absorbed)
         if S >= 1.0:                     # nothing scatters on the way
             continue
@@ -172,7 +194,7 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
                 if e <= 0.0:
                     continue
                 k3, i3, j3 = face_neighbour(k, i, j, n)
-                refl, trans, side_out, absorbed = _deliver(W, Wa, Th, n, k3, i3, j3, e, m, refl, trans,
+                refl, trans, side_out, absorbed = _deliver(W, Wa, Th, pending, n, k3, i3, j3, e, m, refl, trans,
                                                            side_out, absorbed)
         # ... or in the receiver's (Sh[s] (1 - Sh[c])): it crosses into the receiver and waits
         # there in slot 6 + o, which only this cell writes
@@ -183,12 +205,13 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, tallies):
             es *= thc
             W[6 + o, k2, i2, j2] += es
             Wa[6 + o, k2, i2, j2] += es * a_s
+            pending[k2, i2] = 1
     return refl, trans, side_out, absorbed, sent_packets
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    edges, row_work):
+                    edges, row_work, runs, pending):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
     a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
@@ -206,7 +229,15 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
     and no two groups write one ordinate of one cell in a step. So the fields are bitwise those
     of one thread sweeping row by row, whatever the groups; the tallies are summed per row in a
     fixed order (kernels/reduction.py). ``row_work`` (float64 (n_u,)) receives the packets each
-    row i sent, for the next sweep's groups."""
+    row i sent, for the next sweep's groups.
+
+    A packet crossing a run of skipped cells (``runs``, module docstring) lands in a cell that
+    only the row-by-row order's cells before it write in this step: along d in its own row
+    (its group's), along u or v in its own slice, which no other group touches in the step.
+    So the bits stay those of one thread. A row not marked ``pending`` (uint8 (n_d, n_u)) holds
+    no packet and is passed over; a row's mark is cleared when it is swept and set again by
+    every packet that arrives in it or stays pending there; the callers mark the rows of
+    their initial packets (walk.rows_pending)."""
     n0, n1, n2 = Th.shape
     groups = edges.shape[0] - 1
     part = np.zeros((5, n0 * n1))
@@ -217,10 +248,13 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
                 k = s if forward_d else n0 - 1 - s
                 for r in range(edges[g], edges[g + 1]):
                     i = r if forward_u else n1 - 1 - r
+                    if pending[k, i] == 0:
+                        continue
+                    pending[k, i] = 0
                     t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
-                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, k, i, j, t)
+                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, runs, pending, k, i, j, t)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]

@@ -123,6 +123,36 @@ def domain_to_world(fields, frame, dom_origin, h, world_origin, voxel, outs, nee
                      tuple(outs) + tuple(outs[:1]) * pad, needed)
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def voxel_corners(x, y, z, world_origin, voxel, frame, dom_origin, h, shape):
+    """The trilinear stencil (:func:`cell_corners`) in a domain of ``shape`` cells (frame rows
+    d, u, v, corner ``dom_origin``, cell size h) at the centre of world voxel (x, y, z)."""
+    px = world_origin[0] + x * voxel[0] - dom_origin[0]
+    py = world_origin[1] + y * voxel[1] - dom_origin[1]
+    pz = world_origin[2] + z * voxel[2] - dom_origin[2]
+    return cell_corners((px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5,
+                        (px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5,
+                        (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5, shape)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def cells_read(needed, frame, dom_origin, h, world_origin, voxel, out):
+    """Set ``out`` (bool (n_d, n_u, n_v), a domain's cells) at the cells whose fields
+    :func:`domain_to_world` reads for the world voxels where ``needed`` (bool (nx, ny, nz)):
+    the corners of their trilinear stencils. Threads write True into shared cells only, so
+    the result is the same on any number of threads. NumPy twin: tests/twins.py (cells_read)."""
+    nx, ny, nz = needed.shape
+    s = out.shape
+    for x in nb.prange(nx):
+        for y in range(ny):
+            for z in range(nz):
+                if needed[x, y, z]:
+                    i0, i1, j0, j1, k0, k1, fx, fy, fz = voxel_corners(x, y, z, world_origin, voxel, frame,
+                                                                     dom_origin, h, s)
+                    out[i0, j0, k0] = out[i0, j0, k1] = out[i0, j1, k0] = out[i0, j1, k1] = True
+                    out[i1, j0, k0] = out[i1, j0, k1] = out[i1, j1, k0] = out[i1, j1, k1] = True
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def _domain_to_world(fields, n_fields, frame, dom_origin, h, world_origin, voxel, outs, needed):
     """:func:`domain_to_world` of the first ``n_fields`` of ``fields`` into as many ``outs``
@@ -134,12 +164,7 @@ def _domain_to_world(fields, n_fields, frame, dom_origin, h, world_origin, voxel
             for z in range(nz):
                 if not needed[x, y, z]:
                     continue
-                px = world_origin[0] + x * voxel[0] - dom_origin[0]
-                py = world_origin[1] + y * voxel[1] - dom_origin[1]
-                pz = world_origin[2] + z * voxel[2] - dom_origin[2]
-                corners = cell_corners((px * frame[0, 0] + py * frame[0, 1] + pz * frame[0, 2]) / h - 0.5,
-                                       (px * frame[1, 0] + py * frame[1, 1] + pz * frame[1, 2]) / h - 0.5,
-                                       (px * frame[2, 0] + py * frame[2, 1] + pz * frame[2, 2]) / h - 0.5, s)
+                corners = voxel_corners(x, y, z, world_origin, voxel, frame, dom_origin, h, s)
                 # static tuple indices (a loop to n_fields would index the tuples at run time, 15 %
                 # slower); the tests are the same for every voxel, so they cost next to nothing
                 outs[0][x, y, z] = interpolate(fields[0], corners)

@@ -59,9 +59,15 @@ class LightDomain(Protocol):
     def resample(self, medium, channel: int) -> Optics:
         """sigma_t, sigma_s, g (float32, the domain's shape) of colour ``channel``."""
 
-    def walk(self, optics: Optics, method, progress=None):
+    def cells_read(self, medium, seen: np.ndarray) -> np.ndarray | None:
+        """bool (the domain's shape): the cells whose fields are mapped onto the ``seen``
+        voxels of ``medium`` (pipeline.voxels_seen); None where the domain's walk does not use
+        it."""
+
+    def walk(self, optics: Optics, method, progress=None, read: np.ndarray | None = None):
         """Walk unit power (irradiance or intensity) from the light: a results.WalkResult, with
-        ``direct`` (the unscattered part) and, when method.isotropic is "diffusion", ``handed``."""
+        ``direct`` (the unscattered part) and, when method.isotropic is "diffusion", ``handed``.
+        ``read``: :meth:`cells_read`, or None (every cell's fields)."""
 
     def direct_fluence(self, sigma_t: np.ndarray) -> np.ndarray | None:
         """The light's unscattered fluence per unit power at the cells (float32, the domain's

@@ -196,7 +196,11 @@ class SphericalDomain:
             return out
         return optics(medium, grid, self.shape, channel)
 
-    def walk(self, optics, method, progress=None) -> WalkResult:
+    def cells_read(self, medium, seen):
+        """None: the sweeps visit every cell (the renderer reads the fields in this domain)."""
+        return None
+
+    def walk(self, optics, method, progress=None, read=None) -> WalkResult:
         """Walk unit intensity from the light out through the shells (always by sweeps).
         Budget in W per unit intensity [W/sr]: the light emits 4 pi (full sphere) or the
         domain's solid angle. ``direct`` holds the unscattered fluence, ``handed`` (with the

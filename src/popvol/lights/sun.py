@@ -111,12 +111,14 @@ class SunDomain(DirectionalDomain):
     def resample(self, medium, channel: int = 0):
         return resample_medium(medium, self, channel)
 
-    def walk(self, optics, method, progress=None):
+    def walk(self, optics, method, progress=None, read=None):
         """Walk unit irradiance from the face k = 0 (E h^2 per cell of slice 0); with the
         diffusion stage, packets hand over at ``method.handover_scale`` times the cell's
         :func:`handover_factor`, or at ``method.environment_handover_scale`` times it for a
         broad lobe (a0 < 1), which has no direct field. The six-ordinate walk carries every
-        order itself: no hand-over (docs/METHOD.md, "Six ordinates")."""
+        order itself: no hand-over (docs/METHOD.md, "Six ordinates"); it crosses the empty
+        cells outside ``read`` (:meth:`cells_read`; None: every cell read) without visiting
+        them."""
         sigma_t, sigma_s, g = optics
         Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
         handover = None
@@ -129,7 +131,7 @@ class SunDomain(DirectionalDomain):
         scatter = scatter_factor(sigma_s, self.h) if method.solver == "ordinates" else None
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
                           method.tolerance, method.max_iterations, progress=progress, handover=handover,
-                          scatter=scatter)
+                          scatter=scatter, read=read)
         result.direct = self.direct_fluence(sigma_t)
         return result
 
