@@ -12,8 +12,8 @@ from popvol import hg
 from popvol.errors import PopvolError
 from popvol.kernels import ordinates as KO
 from popvol.kernels import cells as KC
-from popvol.walk import (direct_fluence, medium_factors, ordinate_table, row_groups, rows_pending, scatter_factor,
-                         skipped_cells, walk_box)
+from popvol.walk import (direct_fluence, medium_factors, ordinate_table, row_groups, scatter_factor, skipped_cells,
+                         walk_box)
 from test_propagation import uniform_factors
 
 
@@ -73,6 +73,32 @@ def no_runs(shape):
     return np.zeros((6,) + shape, np.int16)
 
 
+def pending_rows(W):
+    """uint8 (n_d, n_u): 1 where a row of the full-grid state W (12,) + shape holds a packet."""
+    return np.any(W != 0, axis=(0, 3)).astype(np.uint8)
+
+
+def kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally, runs=None, edges=None, work=None,
+                 pending=None):
+    """One kernels.ordinates.ordinates_sweep of the full-grid state W, Wa (float32 (12,) + shape,
+    updated in place): the kernel's columns are the cells not skipped (``runs`` > 0; None: no
+    cell skipped), which hold every packet; ``pending`` None: the rows holding packets.
+    Returns the packets sent."""
+    shape = Th.shape
+    runs = no_runs(shape) if runs is None else runs
+    kept = runs[0] == 0
+    assert not W[:, ~kept].any()
+    cell = np.full(shape, -1, np.int32)
+    cell[kept] = np.arange(kept.sum())
+    Wc, Wac = W[:, kept], Wa[:, kept]
+    sent = KO.ordinates_sweep(Wc, Wac, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F, np.float32(w_min),
+                              *order, tally, np.array([0, shape[1]]) if edges is None else np.asarray(edges, np.int64),
+                              np.zeros(shape[1]) if work is None else work, cell, runs,
+                              pending_rows(W) if pending is None else pending)
+    W[:, kept], Wa[:, kept] = Wc, Wac
+    return sent
+
+
 def assert_same_sweep(kernel, twin, before):
     """The kernel's sweep (W, Wa, phi, F, tally) equals the twin's within float32 rounding, and
     the twin's keeps energy: what was pending (``before``) = what is pending + escaped +
@@ -84,8 +110,9 @@ def assert_same_sweep(kernel, twin, before):
 
 def skip_some(rng, W, Wa, Th, Sh, Dh):
     """Empty a block of a :func:`random_state` (Th = Dh = Sh = 1) and return the kernel's runs
-    of the cells in it that walk.skipped_cells skips when a few of them are read; the pending
-    packets are kept in the block, so that some cross runs of it."""
+    of the cells in it that walk.skipped_cells skips when a few of them are read; the skipped
+    cells' packets are removed (they hold none), the block's other cells keep theirs, so that
+    some are sent across runs of skipped cells."""
     n0, n1, n2 = Th.shape
     block = (slice(1, n0 - 1), slice(1, n1), slice(0, n2 - 1))
     for x in (Th, Sh, Dh):
@@ -95,6 +122,8 @@ def skip_some(rng, W, Wa, Th, Sh, Dh):
     assert 0.1 < skip.mean() < 0.6
     runs = no_runs(Th.shape)
     KC.skip_runs(skip, runs)
+    W[:, skip] = 0.0
+    Wa[:, skip] = 0.0
     return runs
 
 
@@ -110,30 +139,32 @@ def test_skip_runs_equals_numpy_twin(rng):
 
 @pytest.mark.parametrize("order", [(True, True, True), (False, False, True)])
 def test_ordinates_kernel_crossing_skipped_runs_equals_numpy_twin(rng, order):
-    """A packet at a cell that starts a run of skipped cells along its ordinate moves whole to
-    the cell after the run (or leaves), without a visit; the rest as before. Against the twin,
-    and energy is kept."""
+    """A part sent into a skipped cell crosses the whole run of them ahead of it along its
+    ordinate to the cell after the run (or leaves), with no visit and nothing left there; the
+    rest as before. Against the twin (whose sweep without the runs differs), and energy is
+    kept."""
     shape = (8, 7, 6)
     W, Wa, Th, Sh, Dh = random_state(rng, shape)
     runs = skip_some(rng, W, Wa, Th, Sh, Dh)
     W_r, Wa_r = W.astype(np.float64), Wa.astype(np.float64)
     phi, F = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32)
     tally = np.zeros(4)
-    sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F, np.float32(0.2),
-                              *order, tally, np.array([0, shape[1]]), np.zeros(shape[1]), runs, rows_pending(W))
+    sent = kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, 0.2, order, tally, runs)
     phi_r, F_r, tally_r = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
     before = W_r.sum()
+    W_n, Wa_n = W_r.copy(), Wa_r.copy()
     assert ref.ordinates_sweep(W_r, Wa_r, Th, Sh, Dh, 3.0, phi_r, F_r, 0.2, *order, tally_r, runs) == sent
     assert_same_sweep((W, Wa, phi, F, tally), (W_r, Wa_r, phi_r, F_r, tally_r), before)
-    # skipped cells with packets above the threshold were crossed, not visited
-    crossed = (runs[:6] > 0).any(axis=0)
-    assert phi[crossed].max() == 0.0 and crossed.sum() > 0
+    skipped = runs[0] > 0
+    assert skipped.sum() > 0 and phi[skipped].max() == 0.0 and W[:, skipped].max() == 0.0
+    ref.ordinates_sweep(W_n, Wa_n, Th, Sh, Dh, 3.0, np.zeros(shape), np.zeros((3,) + shape), 0.2, *order, np.zeros(4))
+    assert np.abs(W_n - W_r).max() > 1e-3                  # the same sweep without the runs
 
 
 def test_rows_marked_pending_are_all_the_sweep_visits(rng):
-    """The sweep visits only the rows marked pending (walk.rows_pending, then kept by the
-    kernel as packets arrive or stay): four sweeps so are bitwise four with every row marked
-    before each, packets crossing skipped runs among them."""
+    """The sweep visits only the rows marked pending (at first the rows holding packets, then
+    kept by the kernel as packets arrive or stay): four sweeps so are bitwise four with every
+    row marked before each, packets crossing skipped runs among them."""
     shape = (9, 8, 7)
     W0, Wa0, Th, Sh, Dh = random_state(rng, shape)
     runs = skip_some(rng, W0, Wa0, Th, Sh, Dh)
@@ -143,13 +174,12 @@ def test_rows_marked_pending_are_all_the_sweep_visits(rng):
     def sweeps(mark_all):
         W, Wa = W0.copy(), Wa0.copy()
         phi, F, tally = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32), np.zeros(4)
-        pending = rows_pending(W)
+        pending = pending_rows(W)
         for it in range(4):
             if mark_all:
                 pending[:] = 1
-            KO.ordinates_sweep(W, Wa, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F, np.float32(0.02),
-                               it % 2 == 0, it % 4 < 2, True, tally, np.array([0, 4, shape[1]]),
-                               np.zeros(shape[1]), runs, pending)
+            kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, 0.02, (it % 2 == 0, it % 4 < 2, True), tally, runs,
+                         [0, 4, shape[1]], np.zeros(shape[1]), pending)
         return W, Wa, phi, F, tally
     for a, b in zip(sweeps(False), sweeps(True)):
         np.testing.assert_array_equal(a, b)
@@ -165,9 +195,7 @@ def test_ordinates_kernel_equals_numpy_twin(rng, order):
     phi, F = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32)
     tally = np.zeros(4)
     w_min = 0.2
-    sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F, np.float32(w_min),
-                              *order, tally, np.array([0, shape[1]]), np.zeros(shape[1]), no_runs(shape),
-                              rows_pending(W))
+    sent = kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally)
 
     phi_r, F_r, tally_r = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
     before = W_r.sum()
@@ -193,11 +221,10 @@ def test_ordinates_kernel_is_the_same_on_any_number_of_lanes(rng, order):
         W, Wa = W0.copy(), Wa0.copy()
         phi, F, tally = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32), np.zeros(4)
         work = np.zeros(shape[1])
-        pending = rows_pending(W)
+        pending = pending_rows(W)
         for forward_d in (order[0], not order[0]):       # a second sweep meets the first's leftovers
-            sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F,
-                                      np.float32(0.05), forward_d, order[1], order[2], tally,
-                                      np.asarray(edges, np.int64), work, runs, pending)
+            sent = kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, 0.05, (forward_d, order[1], order[2]), tally, runs,
+                                edges, work, pending)
         return W, Wa, phi, F, tally, sent, work, pending
 
     one = sweep([0, 11])

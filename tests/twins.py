@@ -219,11 +219,10 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
     cell by cell, in place, in float64. Cells in order of k, i, j (each increasing if its
     ``forward_*``); at each cell first the light that scattered on its way in (slots 6..11, as
     ordinates_step's), then the ordinates o = 0..5 (+d, -d, +u, -u, +v, -v) in turn: a packet
-    above ``w_min`` is taken and, at a cell that starts a run of ``runs[o]`` skipped cells
-    (:func:`skip_runs`; None: none), moved whole to the cell after the run (or tallied where
-    that lies outside); else it visits (phi, F) and is sent as ordinates_step's (exact HG
-    shares): its parts moved into their pending slots, what leaves the grid tallied. Returns
-    the number of packets sent."""
+    above ``w_min`` is taken, visits (phi, F) and is sent as ordinates_step's (exact HG shares):
+    its parts moved into their pending slots, what leaves the grid tallied; a part sent into a
+    skipped cell (``runs[q]`` > 0 there, :func:`skip_runs`; None: none) crosses the run of them
+    ahead along its ordinate q to the cell after it. Returns the number of packets sent."""
     n0, n1, n2 = Th.shape
     Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
     sent_packets = 0
@@ -237,6 +236,10 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
         return tuple(c)
 
     def deliver(e, m, q, dst):
+        while runs is not None and q < 6 and inside(dst) and runs[(q,) + dst] > 0:
+            c = list(dst)                                  # a skipped cell: across its run
+            c[q // 2] += (1 - 2 * (q % 2)) * int(runs[(q,) + dst])
+            dst = tuple(c)
         if dst[0] < 0:
             tally[REFLECTED] += e
         elif dst[0] >= n0:
@@ -264,11 +267,6 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
                     wa = float(Wa[o, k, i, j])
                     W[o, k, i, j] = Wa[o, k, i, j] = 0.0
                     sent_packets += 1
-                    if runs is not None and runs[o, k, i, j] > 0:
-                        c = [k, i, j]
-                        c[o // 2] += (1 - 2 * (o % 2)) * int(runs[o, k, i, j])
-                        deliver(w, wa / w, o, tuple(c))
-                        continue
                     sign = 1.0 - 2.0 * (o % 2)
                     phi[k, i, j] += w * inv_area
                     F[o // 2, k, i, j] += sign * wa * inv_area

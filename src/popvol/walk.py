@@ -267,12 +267,6 @@ def skipped_cells(Th, Dh, Sh, read) -> np.ndarray:
     return empty & ~read & ~grow(~empty)
 
 
-def rows_pending(W) -> np.ndarray:
-    """uint8 (n_d, n_u): 1 where a row (k, i) of the six-ordinate walk's pending state W (float32
-    (12, n_d, n_u, n_v)) holds a packet, which the sweeps then keep (kernels/ordinates.py)."""
-    return np.any(W != 0, axis=(0, 3)).astype(np.uint8)
-
-
 def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
                    skip=None) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
@@ -282,26 +276,46 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     / -d every sweep, the order along u every second and along v every fourth. Returns
     (sweeps, power in flight, power the injection's half step absorbed, packets sent).
     Accumulates into phi, flux (float32 (3,) + shape, the first moment in the domain's frame)
-    and tally, except in the ``skip`` cells (:func:`skipped_cells`; None: none), which a packet
-    crosses in one step per run of them (kernels.cells.skip_runs, int16 (6,) + shape). The
-    pending state W, Wa is float32 (12,) + shape: the six ordinates, then per ordinate o the
-    light that scattered in the cell's half of its way in along e_o (kernels/ordinates.py)."""
+    and tally, except in the ``skip`` cells (:func:`skipped_cells`; None: none), which light
+    crosses a run at a time (kernels.cells.skip_runs, int16 (6,) + shape) and which hold no
+    packet. The pending state W, Wa is float32 (12, m), one column per cell not skipped (its
+    index in ``cell``, int32, the domain's shape, -1 where skipped): the six ordinates, then
+    per ordinate o the light that scattered in the cell's half of its way in along e_o
+    (kernels/ordinates.py)."""
     shape = Th.shape
-    check_memory((2 * 12 * 4 + 6 * 2) * int(np.prod(shape)),
+    n = int(np.prod(shape))
+    kept = np.ones(shape, np.bool_) if skip is None else ~np.asarray(skip, np.bool_)
+    m = int(np.count_nonzero(kept))
+    check_memory(2 * 12 * 4 * m + (4 + 6 * 2) * n,
                  "method.resolution (with experimental.solver = 'ordinates', the default)",
                  f"the 6 ordinates of a {'x'.join(map(str, shape))} domain (power and moment, twice)")
+    cell = np.full(shape, -1, np.int32)
+    cell[kept] = np.arange(m, dtype=np.int32)
     runs = np.zeros((6,) + shape, np.int16)
     if skip is not None:
-        KC.skip_runs(np.ascontiguousarray(skip, np.bool_), runs)
+        KC.skip_runs(~kept, runs)
     table = ordinate_table()
-    W = np.zeros((12,) + shape, np.float32)
+    W = np.zeros((12, m), np.float32)
     Wa = np.zeros_like(W)
-    # the injected light crosses half a cell to the first centres (a0 decayed by Dh[0])
-    W[0, 0] = injection * Th[0]
-    Wa[0, 0] = W[0, 0] * np.float32(a0) * Dh[0]
+    pending = np.zeros(shape[:2], np.uint8)
+    # the injected light crosses half a cell to the first centres (a0 decayed by Dh there): in
+    # slice 0, or, where a column starts with skipped cells, in the cell after them
+    I, J = np.indices(shape[1:])
+    first = runs[0, 0].astype(np.int64)
+    while True:
+        ahead = first < shape[0]
+        unkept = ahead & (cell[np.minimum(first, shape[0] - 1), I, J] < 0)       # a run longer than MAX_RUN
+        if not unkept.any():
+            break
+        first[unkept] += runs[0, first[unkept], I[unkept], J[unkept]]
+    k1, I, J = first[ahead], I[ahead], J[ahead]
+    c = cell[k1, I, J]
+    W[0, c] = injection[ahead] * Th[k1, I, J]
+    Wa[0, c] = W[0, c] * np.float32(a0) * Dh[k1, I, J]
+    pending[k1, I] = 1
+    tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
     absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
     injected = float(np.sum(injection, dtype=np.float64))
-    pending = rows_pending(W)
 
     row_work = np.zeros(shape[1])
     lanes = numba.get_num_threads()
@@ -310,10 +324,10 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         # the rows cut into one group per thread by the work each row did in the sweep before
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
-                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, runs, pending)
-        return K.total_energy(W.reshape((12 * shape[0],) + shape[1:])), sent
+                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, cell, runs, pending)
+        return K.total_energy(W.reshape(12, 1, m)), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
-                                                6 * int(np.prod(shape)), injected, progress)
+                                                6 * n, injected, progress)
     return it, in_flight, absorbed, sent
 
 

@@ -7,10 +7,11 @@ sideways forgets it and lateral transport is a random walk of step h, however th
 (docs/ACCURACY_NOTES.md, the narrow beam). Here a cell holds one pending packet per lattice
 direction e_o (o = 0..5: +d, -d, +u, -u, +v, -v; o ^ 1 is the opposite of o):
 
-  W, Wa  float32 (12, n_d, n_u, n_v): power [W] pending in ordinate o of each cell, at its
-         centre (after the receiver's half step), and power times the lobe's anisotropy
-         about e_o; then, in slot 6 + o, the light that scattered in the cell's half of its
-         way in along e_o, and its power times a_s (below).
+  W, Wa  float32 (12, m): power [W] pending in ordinate o of each cell that is not skipped
+         (below; cell (k, i, j) at column cell[k, i, j], int32 (n_d, n_u, n_v), -1 where
+         skipped), at its centre (after the receiver's half step), and power times the lobe's
+         anisotropy about e_o; then, in slot 6 + o, the light that scattered in the cell's
+         half of its way in along e_o, and its power times a_s (below).
 
 A packet is sent across one transfer to the neighbour c along its own e_o (docs/METHOD.md, "Six
 ordinates"). The share S = Sh[s] Sh[c] of it that crosses unscattered (Sh = exp(-sigma_s h / 2),
@@ -38,13 +39,13 @@ cell later in the sweep's order is sent on in the same sweep, so light crosses t
 every ordinate that the sweep's order follows in one sweep. One cell's send is :func:`_send`;
 the sweep runs it on threads as a pipeline of row groups that gives the bits of one thread.
 
-Empty space (docs/METHOD.md, "Skipping empty space"): ``runs`` (int16 (6, n_d, n_u, n_v),
-kernels.cells.skip_runs) holds, at a skipped cell (empty, with no medium among its 26
-neighbours, its fields read by no one: walk.skipped_cells), how many skipped cells in a row
-lie from it along each e_o. A packet there crosses them in one step, unchanged (nothing
-scatters or is absorbed in them), to the empty cell after the run or out of the domain, and
-visits none of them: their phi and F stay 0. ``pending`` (uint8 (n_d, n_u)) marks the rows
-that hold a packet; a sweep visits only those, which changes no bit.
+Empty space (docs/METHOD.md, "Skipping empty space"): a skipped cell (empty, with no medium
+among its 26 neighbours, its fields read by no one: walk.skipped_cells) holds no packet and has
+no column in W. A part sent into one crosses the whole run of skipped cells ahead of it along
+its ordinate at once (``runs``, int16 (6, n_d, n_u, n_v), kernels.cells.skip_runs), unchanged
+(nothing scatters or is absorbed there), into the cell after the run or out of the domain;
+their phi and F stay 0. ``pending`` (uint8 (n_d, n_u)) marks the rows that hold a packet; a
+sweep visits only those, which changes no bit.
 
 Fields (per unit area, accumulated at every visit, Eq. 14): phi float32 (n_d, n_u, n_v) the
 fluence, F float32 (3, n_d, n_u, n_v) its first moment (the sum over ordinates of W a e_o) in
@@ -67,25 +68,30 @@ PF, PS, PB, MF, MS, MB, MJ = range(7)
 
 
 @nb.njit(inline="always", cache=True)
-def _deliver(W, Wa, Th, pending, q, k2, i2, j2, e, a, refl, trans, side_out, absorbed):
-    """Part ``e`` (anisotropy ``a``) into ordinate q of cell (k2, i2, j2), after that cell's half
-    step, its row marked ``pending``, or tallied where it leaves the domain: through the face
-    k = 0 (reflected), the far face (transmitted) or a lateral face (side). Returns the four
-    tallies."""
+def _deliver(W, Wa, Th, cell, runs, pending, q, k2, i2, j2, e, a, refl, trans, side_out, absorbed):
+    """Part ``e`` (anisotropy ``a``) into ordinate q (0..5) of cell (k2, i2, j2), after that
+    cell's half step, its row marked ``pending``; where that cell is skipped, across its run
+    of skipped cells along e_q (``runs``) to the cell after it. Tallied where it leaves the
+    domain: through the face k = 0 (reflected), the far face (transmitted) or a lateral face
+    (side). Returns the four tallies."""
     n0, n1, n2 = Th.shape
-    if k2 < 0:
-        refl += e
-    elif k2 >= n0:
-        trans += e
-    elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
-        side_out += e
-    else:
-        th2 = Th[k2, i2, j2]
-        absorbed += e * (1.0 - th2)
-        e *= th2
-        W[q, k2, i2, j2] += e
-        Wa[q, k2, i2, j2] += e * a
-        pending[k2, i2] = 1
+    while True:
+        if k2 < 0:
+            return refl + e, trans, side_out, absorbed
+        if k2 >= n0:
+            return refl, trans + e, side_out, absorbed
+        if i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
+            return refl, trans, side_out + e, absorbed
+        c = cell[k2, i2, j2]
+        if c >= 0:
+            break
+        k2, i2, j2 = cell_along(k2, i2, j2, q, runs[q, k2, i2, j2])
+    th2 = Th[k2, i2, j2]
+    absorbed += e * (1.0 - th2)
+    e *= th2
+    W[q, c] += e
+    Wa[q, c] += e * a
+    pending[k2, i2] = 1
     return refl, trans, side_out, absorbed
 
 
@@ -121,12 +127,14 @@ def _part(o, n, cone):
 
 
 @nb.njit(**ON_ITS_OWN)
-def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, runs, pending, k, i, j, tallies):
+def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, tallies):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
-    docstring; :func:`ordinates_sweep`); a packet in a cell that starts a run of skipped cells
-    along its ordinate (``runs``) crosses the run at once. A packet left pending marks its
-    row in ``pending``. ``tallies`` = (reflected, transmitted, side escaped, absorbed, packets
-    sent) so far; returns them updated."""
+    docstring; :func:`ordinates_sweep`); a skipped cell (``cell`` < 0) holds none. A packet
+    left pending marks its row in ``pending``. ``tallies`` = (reflected, transmitted, side
+    escaped, absorbed, packets sent) so far; returns them updated."""
+    c = cell[k, i, j]
+    if c < 0:
+        return tallies
     refl, trans, side_out, absorbed, sent_packets = tallies
     n0, n1, n2 = Th.shape
     th = Th[k, i, j]
@@ -135,35 +143,27 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, runs, pending, k, i
     for o in range(6):
         # light that scattered in this cell's half of its way in along e_o (slot 6 + o): split
         # by the cone partition about e_o into this cell's ordinates
-        x = W[6 + o, k, i, j]
+        x = W[6 + o, c]
         if x <= 0.0:
             continue
-        xa = Wa[6 + o, k, i, j]
-        W[6 + o, k, i, j] = 0.0
-        Wa[6 + o, k, i, j] = 0.0
+        xa = Wa[6 + o, c]
+        W[6 + o, c] = 0.0
+        Wa[6 + o, c] = 0.0
         cone = _cone(table, xa / x)
         for n in range(6):
             share, m = _part(o, n, cone)
-            W[n, k, i, j] += x * share
-            Wa[n, k, i, j] += x * share * m
+            W[n, c] += x * share
+            Wa[n, c] += x * share * m
     for o in range(6):
-        w = W[o, k, i, j]
+        w = W[o, c]
         if w <= w_min:
             if w > 0.0:
                 pending[k, i] = 1
             continue
-        wa = Wa[o, k, i, j]
-        W[o, k, i, j] = 0.0
-        Wa[o, k, i, j] = 0.0
+        wa = Wa[o, c]
+        W[o, c] = 0.0
+        Wa[o, c] = 0.0
         sent_packets += 1
-        run = runs[o, k, i, j]
-        if run > 0:
-            # a skipped cell (empty, its fields read by no one): the packet crosses the run of
-            # them along e_o unchanged and arrives at the empty cell after it, or leaves
-            k2, i2, j2 = cell_along(k, i, j, o, run)
-            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, pending, o, k2, i2, j2, w, wa / w, refl, trans, side_out,
-                                                       absorbed)
-            continue
         sign = 1.0 - 2.0 * (o % 2)
         phi[k, i, j] += w * inv_area
         F[o // 2, k, i, j] += sign * wa * inv_area
@@ -177,8 +177,8 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, runs, pending, k, i
         D = dh * Dh[k2, i2, j2] if inside else dh
         e = sent * S
         if e > 0.0:
-            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, pending, o, k2, i2, j2, e, a, refl, trans, side_out,
-                                                       absorbed)
+            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, cell, runs, pending, o, k2, i2, j2, e, a, refl,
+                                                       trans, side_out, absorbed)
         if S >= 1.0:                     # nothing scatters on the way
             continue
         # the part that scatters: its lobe's mean cosine a_s = a (D - S) / (1 - S), so that the
@@ -194,24 +194,26 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, runs, pending, k, i
                 if e <= 0.0:
                     continue
                 k3, i3, j3 = face_neighbour(k, i, j, n)
-                refl, trans, side_out, absorbed = _deliver(W, Wa, Th, pending, n, k3, i3, j3, e, m, refl, trans,
-                                                           side_out, absorbed)
+                refl, trans, side_out, absorbed = _deliver(W, Wa, Th, cell, runs, pending, n, k3, i3, j3, e, m,
+                                                           refl, trans, side_out, absorbed)
         # ... or in the receiver's (Sh[s] (1 - Sh[c])): it crosses into the receiver and waits
-        # there in slot 6 + o, which only this cell writes
+        # there in slot 6 + o, which only this cell writes (a receiver with medium, or next to
+        # this cell's, is never skipped)
         if inside:
             thc = Th[k2, i2, j2]
             es = sent * sh * (1.0 - Sh[k2, i2, j2])
             absorbed += es * (1.0 - thc)
             es *= thc
-            W[6 + o, k2, i2, j2] += es
-            Wa[6 + o, k2, i2, j2] += es * a_s
+            c2 = cell[k2, i2, j2]
+            W[6 + o, c2] += es
+            Wa[6 + o, c2] += es * a_s
             pending[k2, i2] = 1
     return refl, trans, side_out, absorbed, sent_packets
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    edges, row_work, runs, pending):
+                    edges, row_work, cell, runs, pending):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
     a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
@@ -231,13 +233,13 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
     fixed order (kernels/reduction.py). ``row_work`` (float64 (n_u,)) receives the packets each
     row i sent, for the next sweep's groups.
 
-    A packet crossing a run of skipped cells (``runs``, module docstring) lands in a cell that
-    only the row-by-row order's cells before it write in this step: along d in its own row
+    A part crossing a run of skipped cells (``cell``, ``runs``: module docstring) lands in a cell
+    that only the row-by-row order's cells before it write in this step: along d in its own row
     (its group's), along u or v in its own slice, which no other group touches in the step.
     So the bits stay those of one thread. A row not marked ``pending`` (uint8 (n_d, n_u)) holds
     no packet and is passed over; a row's mark is cleared when it is swept and set again by
     every packet that arrives in it or stays pending there; the callers mark the rows of
-    their initial packets (walk.rows_pending)."""
+    their initial packets."""
     n0, n1, n2 = Th.shape
     groups = edges.shape[0] - 1
     part = np.zeros((5, n0 * n1))
@@ -254,7 +256,7 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
                     t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
-                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, runs, pending, k, i, j, t)
+                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, t)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
