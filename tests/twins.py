@@ -236,7 +236,7 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
         return tuple(c)
 
     def deliver(e, m, q, dst):
-        while runs is not None and q < 6 and inside(dst) and runs[(q,) + dst] > 0:
+        if runs is not None and q < 6 and inside(dst) and runs[(q,) + dst] > 0:
             c = list(dst)                                  # a skipped cell: across its run
             c[q // 2] += (1 - 2 * (q % 2)) * int(runs[(q,) + dst])
             dst = tuple(c)

@@ -283,6 +283,8 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     per ordinate o the light that scattered in the cell's half of its way in along e_o
     (kernels/ordinates.py)."""
     shape = Th.shape
+    if max(shape) > KC.MAX_RUN:
+        raise ValueError(f"the six-ordinate walk takes domains of at most {KC.MAX_RUN} cells a side, not {shape}")
     n = int(np.prod(shape))
     kept = np.ones(shape, np.bool_) if skip is None else ~np.asarray(skip, np.bool_)
     m = int(np.count_nonzero(kept))
@@ -302,12 +304,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     # slice 0, or, where a column starts with skipped cells, in the cell after them
     I, J = np.indices(shape[1:])
     first = runs[0, 0].astype(np.int64)
-    while True:
-        ahead = first < shape[0]
-        unkept = ahead & (cell[np.minimum(first, shape[0] - 1), I, J] < 0)       # a run longer than MAX_RUN
-        if not unkept.any():
-            break
-        first[unkept] += runs[0, first[unkept], I[unkept], J[unkept]]
+    ahead = first < shape[0]
     k1, I, J = first[ahead], I[ahead], J[ahead]
     c = cell[k1, I, J]
     W[0, c] = injection[ahead] * Th[k1, I, J]

@@ -142,23 +142,22 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q):
     return ordered_sum(part)
 
 
-#: the longest run one entry of :func:`skip_runs` holds (int16); a longer run is crossed in
-#: hops of at most this many cells
+#: the longest run an entry of :func:`skip_runs` can hold (int16): no domain axis may be longer
 MAX_RUN = 32767
 
 
 @nb.njit(cache=True)
 def _runs_along(skip, ahead, behind):
     """Along one line of cells (1-D views): ahead[x], behind[x] = how many cells in a row from x
-    toward higher, lower x are skipped (``skip``), x included, at most MAX_RUN; 0 if x is not."""
+    toward higher, lower x are skipped (``skip``), x included; 0 if x is not."""
     n = skip.shape[0]
     r = 0
     for x in range(n - 1, -1, -1):
-        r = min(r + 1, MAX_RUN) if skip[x] else 0
+        r = r + 1 if skip[x] else 0
         ahead[x] = r
     r = 0
     for x in range(n):
-        r = min(r + 1, MAX_RUN) if skip[x] else 0
+        r = r + 1 if skip[x] else 0
         behind[x] = r
 
 
@@ -166,8 +165,8 @@ def _runs_along(skip, ahead, behind):
 def skip_runs(skip, runs):
     """runs int16 (6, n_d, n_u, n_v): at a cell where ``skip`` (bool (n_d, n_u, n_v)), how
     many cells in a row from it across face o (o in :func:`cell_along`'s order, itself
-    included) are skipped, at most MAX_RUN; 0 where it is not skipped. Lines along d are the
-    threads' by row u, lines along u and v by slice k."""
+    included) are skipped; 0 where it is not skipped. No axis may be longer than MAX_RUN.
+    Lines along d are the threads' by row u, lines along u and v by slice k."""
     n0, n1, n2 = skip.shape
     for i in nb.prange(n1):
         for j in range(n2):

@@ -75,23 +75,22 @@ def _deliver(W, Wa, Th, cell, runs, pending, q, k2, i2, j2, e, a, refl, trans, s
     domain: through the face k = 0 (reflected), the far face (transmitted) or a lateral face
     (side). Returns the four tallies."""
     n0, n1, n2 = Th.shape
-    while True:
-        if k2 < 0:
-            return refl + e, trans, side_out, absorbed
-        if k2 >= n0:
-            return refl, trans + e, side_out, absorbed
-        if i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
-            return refl, trans, side_out + e, absorbed
-        c = cell[k2, i2, j2]
-        if c >= 0:
-            break
+    if 0 <= k2 < n0 and 0 <= i2 < n1 and 0 <= j2 < n2 and cell[k2, i2, j2] < 0:
         k2, i2, j2 = cell_along(k2, i2, j2, q, runs[q, k2, i2, j2])
-    th2 = Th[k2, i2, j2]
-    absorbed += e * (1.0 - th2)
-    e *= th2
-    W[q, c] += e
-    Wa[q, c] += e * a
-    pending[k2, i2] = 1
+    if k2 < 0:
+        refl += e
+    elif k2 >= n0:
+        trans += e
+    elif i2 < 0 or i2 >= n1 or j2 < 0 or j2 >= n2:
+        side_out += e
+    else:
+        th2 = Th[k2, i2, j2]
+        absorbed += e * (1.0 - th2)
+        e *= th2
+        c = cell[k2, i2, j2]
+        W[q, c] += e
+        Wa[q, c] += e * a
+        pending[k2, i2] = 1
     return refl, trans, side_out, absorbed
 
 
