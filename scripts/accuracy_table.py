@@ -13,7 +13,8 @@ The suite:
   point light, a cloud under an HDR map). Their references are
   build/accuracy/NAME.exr (not in git), rendered here with ``popvol.reference`` when missing or
   short of ``--spp`` (times SPP_SCALE for the scenes that cost Mitsuba far more per sample) and
-  extended, never edited, on later runs;
+  extended, never edited, on later runs; a reference made before ``popvol reference`` kept two
+  independent halves of its passes is extended by half its samples, which form one of them;
 - the gallery's scenes that the suite has no copy of (examples/NAME.toml; references
   build/gallery/NAME_ref.exr, made as docs/GALLERY.md says; skipped, with the reason, without one).
 
@@ -89,7 +90,7 @@ def measure(path: Path, ref, overrides: dict, resolution: int) -> tuple[dict, ob
     t0 = time.perf_counter()
     image = popvol.render(scene, popvol.solve(scene))
     seconds = time.perf_counter() - t0
-    c = metrics.compare(image, ref.image, metrics.medium_mask(ref.image, scene), ref.variance)
+    c = metrics.compare(image, ref.image, metrics.medium_mask(ref.image, scene), ref.variance, ref.halves)
     return {"cells": resolution, "seconds": seconds, **c}, image
 
 
@@ -117,7 +118,20 @@ def reference_for(key: str, path: Path, ref_path: Path, spp: int, variant: str):
         more = spp - (ref.spp if ref else 0)
         print(f"{key}: reference, {more} spp ...", flush=True)
         ref = render_reference(popvol.load_scene(path), ref_path, more, variant, passes=8)
+    if ref.halves is None:                      # made before the halves were kept
+        return extend_by_half(key, path, ref_path, ref)
     return ref
+
+
+def extend_by_half(key: str, path: Path, ref_path: Path, ref):
+    """A reference without two independent halves (``Reference.halves``), extended by half its
+    passes at its own samples per pass and size: the new passes form one half."""
+    passes = max(1, ref.passes // 2)
+    print(f"{key}: reference, {passes} more passes for its independent half ...", flush=True)
+    h, w = ref.image.shape[:2]
+    return render_reference(popvol.load_scene(path, width=w, height=h), ref_path, ref.meta["spp_per_pass"] * passes,
+                            ref.meta.get("variant", "llvm_ad_rgb"), passes=passes,
+                            max_depth=ref.meta.get("max_depth", 1024))
 
 
 def small_png(path: Path) -> None:
@@ -235,6 +249,8 @@ def main():
                 if not ref_path.is_file():
                     raise PopvolError(f"no {ref_path.relative_to(ROOT)} (docs/GALLERY.md says how to make it)")
                 ref = load_reference(ref_path)
+                if ref.halves is None:
+                    ref = extend_by_half(key, path, ref_path, ref)
         except PopvolError as e:
             body += [f"## {key}", "", f"Skipped: {e}", ""]
             print(f"{key}: skipped ({e})", flush=True)
@@ -251,8 +267,10 @@ def main():
             f"crosses the medium (optical depth > {metrics.MASK_OPTICAL_DEPTH:g}): relMSE with epsilon = "
             "0.01 x (mean reference luminance there)^2, unchanged when both images are scaled; the "
             "brightness ratio popvol / Mitsuba there, and the same ratio in the reference's dimmest 50 % "
-            "(dim), middle 40 % (mid) and brightest 10 % (bright) of those pixels; the reference's own "
-            "noise in the same metric beside it. A sky's or an HDR map's domains keep "
+            "(dim), middle 40 % (mid) and brightest 10 % (bright) of those pixels, each half of the "
+            "reference's passes ranked into the bands and measured against the other half (so that the "
+            "reference's noise does not pick the pixels it is measured on: `popvol.metrics`); the "
+            "reference's own noise in the same metric beside it. A sky's or an HDR map's domains keep "
             "`environment_resolution` = 64 at every row. The default walks a sun's and an "
             "environment's light with six ordinates, every order, with no diffusion stage (`solver = "
             "\"ordinates\"`, docs/METHOD.md \"Six ordinates\"; point lights sweep one lobe with the "

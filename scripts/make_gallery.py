@@ -86,7 +86,7 @@ def main():
                 ref = load_reference(ref_path)
                 scene = popvol.load_scene(ROOT / "examples" / f"{name}.toml", width=size[0], height=size[1])
                 mask = metrics.medium_mask(ref.image, scene)
-                row["compare"] = metrics.compare(img, ref.image, mask, ref.variance)
+                row["compare"] = metrics.compare(img, ref.image, mask, ref.variance, ref.halves)
                 row["spp"] = ref.spp
                 e = auto_exposure(ref.image)
                 panel = np.concatenate([tonemap(img, e), np.full((size[1], 4, 3), 255, np.uint8),
@@ -109,8 +109,8 @@ def write_markdown(rows):
              "spp given), the figure is **popvol | Mitsuba** at the reference's automatic exposure, and",
              "the figures are those of `popvol compare` on the pixels that see the medium: relMSE with",
              "epsilon = 0.01 x (mean reference luminance)^2, the brightness ratio, and the ratio in the",
-             "reference's dimmest 50 % / middle 40 % / brightest 10 %, with the reference's own noise in",
-             "the same relMSE. Times are popvol's whole render (load, solve, render, write) after a warm-up",
+             "reference's dimmest 50 % / middle 40 % / brightest 10 % (each half of its passes ranked and",
+             "measured against the other), with the reference's own noise in the same relMSE. Times are popvol's whole render (load, solve, render, write) after a warm-up",
              "run that compiled the kernels; the WDAS scenes need `../shared/data/volumes`.", ""]
     for r in rows:
         lines += [f"## {r['caption']}", "", f"![{r['name']}](figures/gallery/{r['name']}.png)", "",

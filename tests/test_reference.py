@@ -165,6 +165,35 @@ def test_reference_passes_accumulate_and_resume(blob_file, tmp_path):
     assert load_reference(out).spp == 128
 
 
+def test_reference_keeps_two_independent_halves_and_old_references_gain_one(blob_file, tmp_path):
+    """The passes of odd number are summed apart (``sum_b``): the reference's two halves are
+    the means of its passes in and outside that subset, their weighted mean is the image, and
+    they are independent (their difference is noise of the size the variance says). A reference
+    written before the subset was kept (no ``sum_b``) puts every pass added to it in the subset."""
+    sc = blob_scene(blob_file, 1.0, 2.0, 0.0, width=16, height=12)
+    out = tmp_path / "ref.exr"
+    r = render_reference(sc, out, spp=64, passes=4)
+    a, b = r.halves
+    assert r.meta["passes_b"] == 2
+    np.testing.assert_allclose(0.5 * (a + b), r.image, rtol=1e-5, atol=1e-7)
+    assert not np.array_equal(a, b)
+    # the halves differ by noise: each is the mean of 2 passes, so var(a - b) = 4 var(mean of 4)
+    on = r.image.sum(-1) > 0.05 * r.image.sum(-1).max()
+    assert np.mean((a - b)[on] ** 2) == pytest.approx(np.mean(4 * r.variance[on]), rel=0.6)
+    # a reference from before: no sum_b, no passes_b
+    with np.load(tmp_path / "ref.exr.npz") as z:
+        np.savez(tmp_path / "ref.exr.npz", sum=z["sum"], sumsq=z["sumsq"])
+    meta = json.loads((tmp_path / "ref.exr.json").read_text())
+    del meta["passes_b"]
+    (tmp_path / "ref.exr.json").write_text(json.dumps(meta))
+    assert load_reference(out).halves is None
+    r2 = render_reference(sc, out, spp=32, passes=2)
+    assert (r2.passes, r2.meta["passes_b"]) == (6, 2)
+    old, new = r2.halves
+    np.testing.assert_allclose(old, r.image, rtol=1e-5, atol=1e-7)      # the 4 passes it had
+    np.testing.assert_allclose((4 * old + 2 * new) / 6, r2.image, rtol=1e-5, atol=1e-7)
+
+
 def test_compare_command_writes_metrics_and_figure(blob_file, tmp_path):
     from popvol.cli import main
     scene_toml = tmp_path / "blob.toml"

@@ -358,7 +358,9 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     On the pixels whose camera ray crosses the medium (optical depth > 0.01): relMSE with
     eps = 0.01 (mean reference luminance there)^2, unchanged when both images are scaled; the
     brightness ratio popvol / reference there and in the reference's dimmest 50 %, middle 40 %
-    and brightest 10 % of them; the reference's own noise in the same relMSE; and the equal-error
+    and brightest 10 % of them (ranked on one independent half of the reference's passes and
+    measured on the other, where it has them, so that its noise does not pick the pixels); the
+    reference's own noise in the same relMSE; and the equal-error
     speed-up: the samples per pixel, and seconds at the reference's recorded rate, that the
     reference would need for its noise to equal popvol's error, over popvol's time."""
     from . import metrics
@@ -386,7 +388,7 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
            "popvol_seconds": seconds, "solve_seconds": solution.seconds,
            "reference_seconds": float(ref.meta.get("seconds", 0.0)) or None,
            "mask": f"camera ray optical depth > {metrics.MASK_OPTICAL_DEPTH:g}",
-           **metrics.compare(img, ref.image, mask, ref.variance)}
+           **metrics.compare(img, ref.image, mask, ref.variance, ref.halves)}
     res["equal_error"] = metrics.equal_error(res["relmse"], res["reference_noise_relmse"], ref.spp,
                                              res["reference_seconds"], seconds)
     if json_out:
@@ -404,7 +406,8 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     flip = res["flip"]
     click.echo(f"relMSE {_fmt(res['relmse'], '.4g')} on {res['mask_pixels']} medium pixels  "
                f"brightness x{_fmt(res['brightness_ratio'], '.3f')} (dim 50 % x{_fmt(b['dim'], '.3f')}, "
-               f"mid 40 % x{_fmt(b['mid'], '.3f')}, bright 10 % x{_fmt(b['bright'], '.3f')})  "
+               f"mid 40 % x{_fmt(b['mid'], '.3f')}, bright 10 % x{_fmt(b['bright'], '.3f')}"
+               f"{'' if ref.halves is not None else '; bands ranked on the reference itself: it has no independent halves'})  "
                f"reference noise {_fmt(res['reference_noise_relmse'], '.2g')}  "
                f"SSIM {_fmt(res['ssim'], '.3f')}  FLIP {_fmt(flip, '.3f')}  popvol {seconds:.2f} s")
     eq = res["equal_error"]

@@ -19,6 +19,17 @@ Definitions (M = the masked pixels, N = |M|, Y = luminance = RGB @ ``envmap.LUMI
 - band ratios: the same ratio on three bands of M by the reference's luminance rank: the
   dimmest 50 % of M (``dim``), the next 40 % (``mid``) and the brightest 10 % (``bright``);
   ties are split by pixel order (a stable sort), so the bands always have those sizes.
+  Ranked by a noisy reference, its brightest pixels are also those whose noise came out
+  high, so a band's ratio would be biased by the reference's own noise: low in the bright
+  band, high in the dim one (a Mitsuba image against an independent Mitsuba reference of the
+  same scene, the sun behind the camera, 1024 spp each: dim x1.26, bright x0.70;
+  scripts/band_bias.py). Where the reference
+  holds two independent images (``Reference.halves``: its passes in subset B and the others),
+  each is ranked and the band measured against the other: ``sum over both of Y_img on the
+  band of one / sum over both of Y_ref of the other on it`` (:func:`band_ratios`), which no
+  pixel's own noise selects. The half's noise still mixes some pixels of the next band into
+  each, so a real flattening of the contrast shows a little smaller than ranked by the truth
+  (tests/test_metrics.py: x0.87 against x0.84 in the brightest tenth, halves of 20 % noise).
 - the reference's own noise, in the same metric: ``1 / (3 N) * sum over M and c of
   var[p, c] / (ref[p, c]^2 + eps)`` with ``var`` the variance of the reference's mean per pixel
   (``Reference.variance``) and the same eps and mask: the relMSE expected of the reference
@@ -265,11 +276,24 @@ def bands(ref, mask=None) -> dict:
     return out
 
 
-def band_ratios(img, ref, mask=None) -> dict:
-    """{"dim", "mid", "bright"}: :func:`brightness_ratio` on each of :func:`bands`."""
+def band_ratios(img, ref, mask=None, halves=None) -> dict:
+    """{"dim", "mid", "bright"}: :func:`brightness_ratio` on each of :func:`bands` of ``ref``.
+
+    ``halves``: two independent images of the reference (float (H, W, 3) each, e.g.
+    ``Reference.halves``) or None. With them each half is ranked into bands and each band is
+    measured against the other half (module docstring), so that the reference's noise does not
+    pick the pixels it is measured on."""
     img, ref = _pair(img, ref)
-    y_img, y_ref = luminance(img), luminance(ref)
-    return {name: _ratio(y_img[b], y_ref[b]) for name, b in bands(ref, mask).items()}
+    y_img = luminance(img)
+    mask = _mask(mask, ref)
+    if halves is None:
+        y_ref = luminance(ref)
+        return {name: _ratio(y_img[b], y_ref[b]) for name, b in bands(ref, mask).items()}
+    a, b = (_pair(h, ref)[0] for h in halves)
+    y_a, y_b = luminance(a), luminance(b)
+    on_a, on_b = bands(a, mask), bands(b, mask)
+    return {name: _ratio(np.concatenate([y_img[on_a[name]], y_img[on_b[name]]]),
+                         np.concatenate([y_b[on_a[name]], y_a[on_b[name]]])) for name in on_a}
 
 
 def ratio_map(img, ref, mask=None) -> np.ndarray:
@@ -320,19 +344,22 @@ def flip(img, ref) -> float | None:
     return float(mean_error)
 
 
-def compare(img, ref, mask=None, variance=None) -> dict:
+def compare(img, ref, mask=None, variance=None, halves=None) -> dict:
     """Every metric at once (the metric keys of ``popvol compare --json``).
 
     ``mask`` bool (H, W), default :func:`luminance_mask` of ``ref``; ``variance`` float (H, W, 3),
-    the reference's variance of the mean, for ``reference_noise_relmse`` (None without it).
+    the reference's variance of the mean, for ``reference_noise_relmse`` (None without it);
+    ``halves``, two independent images of the reference for the bands (:func:`band_ratios`).
     Keys: relmse, relmse_eps, brightness_ratio, brightness_bands {dim, mid, bright},
-    reference_noise_relmse, mask_pixels, pixels, rmse (whole frame, absolute), ssim, flip.
+    bands_ranked_on ("independent halves" or "the reference"), reference_noise_relmse,
+    mask_pixels, pixels, rmse (whole frame, absolute), ssim, flip.
     """
     img, ref = _pair(img, ref)
     mask = _mask(mask, ref)
     return {"relmse": relmse(img, ref, mask), "relmse_eps": relmse_eps(ref, mask),
             "brightness_ratio": brightness_ratio(img, ref, mask),
-            "brightness_bands": band_ratios(img, ref, mask),
+            "brightness_bands": band_ratios(img, ref, mask, halves),
+            "bands_ranked_on": "the reference" if halves is None else "independent halves",
             "reference_noise_relmse": None if variance is None else noise_relmse(variance, ref, mask),
             "mask_pixels": int(mask.sum()), "pixels": int(mask.size),
             "rmse": rmse(img, ref), "ssim": ssim(img, ref), "flip": flip(img, ref)}

@@ -28,7 +28,12 @@ empty, an absorbing-only and an optically thin medium):
 Reference images are accumulated over passes: ``REF.exr`` holds the mean, ``REF.exr.json`` the
 sample count and provenance (the scene file relative to the reference's folder, so that the
 metadata names no path of the machine that made it), ``REF.exr.npz`` the per-pixel sum and sum
-of squares of the pass means (float64), from which the reference's own noise is estimated.
+of squares of the pass means (float64), from which the reference's own noise is estimated, and
+``sum_b``, the sum over a subset B of the passes (``passes_b`` of them in the metadata): the
+passes of odd number, and all the passes added to a reference made before B was kept. The
+passes in B and those outside it are two independent images of the same scene
+(:attr:`Reference.halves`), so that pixels can be ranked by one and measured against the other
+(:func:`popvol.metrics.band_ratios`).
 """
 from __future__ import annotations
 
@@ -161,6 +166,9 @@ class Reference:
     passes: int
     variance: np.ndarray | None  # float64 (H, W, 3): variance of the mean (None with < 2 passes)
     meta: dict
+    #: float64 (H, W, 3) each: the means of the passes outside subset B and in it, two independent
+    #: images of the scene (module docstring); None where a reference has no pass in one of them
+    halves: tuple[np.ndarray, np.ndarray] | None = None
 
     def noise_relmse(self, mask: np.ndarray | None = None) -> float | None:
         """Expected relMSE of this reference against the truth, from its pass-to-pass variance,
@@ -204,15 +212,18 @@ def load_reference(path) -> Reference:
     if not image.any():
         raise PopvolError(f"{path}: the reference is black (every pixel 0); there is nothing to compare with")
     meta_path, sums_path = _sidecars(path)
-    meta, variance, spp, passes = {}, None, 0, 1
+    meta, variance, halves, spp, passes = {}, None, None, 0, 1
     if meta_path.is_file():
         meta = _read_meta(meta_path)
         spp, passes = int(meta.get("spp", 0)), int(meta.get("passes", 1))
     if sums_path.is_file() and passes >= 2:
-        s, s2 = _read_sums(sums_path, image.shape)
+        s, s2, sb = _read_sums(sums_path, image.shape)
         mean = s / passes
         variance = np.maximum(s2 / passes - mean ** 2, 0.0) / (passes - 1)
-    return Reference(image, spp, passes, variance, meta)
+        nb = int(meta.get("passes_b", 0))
+        if sb is not None and 1 <= nb < passes:
+            halves = ((s - sb) / (passes - nb), sb / nb)
+    return Reference(image, spp, passes, variance, meta, halves)
 
 
 def _read_meta(meta_path: Path) -> dict:
@@ -230,19 +241,20 @@ def _read_meta(meta_path: Path) -> dict:
     return meta
 
 
-def _read_sums(sums_path: Path, shape) -> tuple[np.ndarray, np.ndarray]:
-    """A reference's per-pixel sum and sum of squares over its passes (REF.exr.npz), float64 of
-    ``shape`` (H, W, 3)."""
+def _read_sums(sums_path: Path, shape) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """A reference's per-pixel sum and sum of squares over its passes and sum over subset B
+    (REF.exr.npz; None where the file has no ``sum_b``), float64 of ``shape`` (H, W, 3)."""
     try:
         with np.load(sums_path, allow_pickle=False) as z:
             s, s2 = np.asarray(z["sum"], np.float64), np.asarray(z["sumsq"], np.float64)
+            sb = np.asarray(z["sum_b"], np.float64) if "sum_b" in z.files else None
     except (OSError, ValueError, KeyError, EOFError) as e:
         raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums (keys sum and sumsq; "
                           f"{e})") from None
-    if s.shape != tuple(shape) or s2.shape != tuple(shape):
+    if any(x is not None and x.shape != tuple(shape) for x in (s, s2, sb)):
         raise PopvolError(f"{sums_path}: sums of shape {s.shape} and {s2.shape} do not match the image's "
                           f"{tuple(shape)}; resume at the image's size or choose another output")
-    return s, s2
+    return s, s2, sb
 
 
 def _meta_number(meta: dict, key: str, default, meta_path: Path, kind, minimum):
@@ -272,8 +284,9 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
     passes = min(passes, spp)
     meta_path, sums_path = _sidecars(output)
     digest = scene_digest(scene)
-    s = s2 = None
-    done_passes = done_spp = 0
+    s = s2 = sb = None
+    done_passes = done_spp = nb = 0
+    old = False                 # a reference made before subset B was kept: new passes form B
     seconds = 0.0
     if resume and output.exists():
         if not (meta_path.is_file() and sums_path.is_file()):
@@ -283,8 +296,12 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
         if meta.get("scene_digest") != digest:
             raise PopvolError(f"{output}: was rendered for another scene ({meta.get('scene')}); "
                               "choose another output")
-        s, s2 = _read_sums(sums_path, (scene.camera.height, scene.camera.width, 3))
+        s, s2, sb = _read_sums(sums_path, (scene.camera.height, scene.camera.width, 3))
         done_passes, done_spp = int(meta.get("passes", 1)), int(meta.get("spp", 0))
+        nb = _meta_number(meta, "passes_b", 0, meta_path, int, 0) if sb is not None else 0
+        old = sb is None
+        if old:
+            sb = np.zeros_like(s)
         seconds = float(meta.get("seconds", 0.0))
         if _meta_number(meta, "max_depth", 1024, meta_path, int, -1) != max_depth:
             raise PopvolError(f"{output}: was rendered with --max-depth {meta.get('max_depth', 1024)}; resume "
@@ -301,6 +318,11 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
         seconds += time.perf_counter() - t0
         s = img if s is None else s + img
         s2 = img ** 2 if s2 is None else s2 + img ** 2
+        if sb is None:
+            sb = np.zeros_like(img)
+        if old or (done_passes + p) % 2 == 1:
+            sb += img
+            nb += 1
         if progress is not None:
             progress(p + 1, passes)
     n = done_passes + passes
@@ -311,9 +333,9 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
     mean = np.where((mean < 0) & (mean > -1e-6 * max(float(mean.max()), 1e-30)), 0.0, mean)
     mean = mean.astype(np.float32)
     write_exr(output, mean)
-    write_atomically(sums_path, lambda tmp: np.savez(tmp, sum=s, sumsq=s2))
+    write_atomically(sums_path, lambda tmp: np.savez(tmp, sum=s, sumsq=s2, sum_b=sb))
     meta = {"scene": _scene_name(scene.source, output), "scene_digest": digest,
-            "spp": done_spp + per_pass * passes, "passes": n, "spp_per_pass": per_pass,
+            "spp": done_spp + per_pass * passes, "passes": n, "passes_b": nb, "spp_per_pass": per_pass,
             "variant": variant, "max_depth": max_depth, "integrator": "volpath",
             "mitsuba": mi.__version__, "seconds": seconds,
             "width": scene.camera.width, "height": scene.camera.height}
