@@ -67,7 +67,17 @@ def test_the_sun_is_its_own_light():
     assert sorted(l.irradiance[0] for l in lights)[-2] < 0.1 * brightest.irradiance[0]   # not split
     assert np.dot(-brightest.direction, sun_dir) > np.cos(np.radians(2.0))
     assert brightest.irradiance[0] == pytest.approx(sun_power, rel=0.05)
-    assert brightest.a0 > 0.999
+    # collimated, so its unscattered light is kept apart; the others are regions of the map
+    # without the sun, whose texels the gather lets in (renderer.gathered_environment)
+    assert brightest.a0 == 1.0 and brightest.unscattered and not brightest.map_region
+    others = [l for l in lights if l is not brightest]
+    assert all(l.map_region and l.a0 < 1 for l in others)
+    covered = sum(l.texels.astype(int) for l in lights)
+    assert covered.max() == 1 and covered.sum() == H * 2 * H                 # each texel in one light
+    assert not any(l.texels[10:12, 40:42].any() for l in others)
+    # one light holding the sun is no region of a map without it
+    (single,) = envmap.decompose(env, 1)
+    assert not single.map_region and single.a0 < 1
 
 
 def _scene(env_table, width=32, height=16):

@@ -8,7 +8,7 @@ import pytest
 
 import popvol
 import twins as ref
-from popvol import renderer
+from popvol import metrics, renderer
 from popvol.pipeline import voxels_seen
 from popvol.scene import apply_overrides
 
@@ -112,11 +112,86 @@ def test_one_colour_sweep_is_the_rgb_sweep_of_one_channel():
     for w in dirs / np.linalg.norm(dirs, axis=1)[:, None]:
         outs = [np.zeros(grids[0].shape + (1,), np.float32) for _ in range(2)]
         norms = [np.zeros(grids[0].shape, np.float32) for _ in range(2)]
-        KG._sweep(medium, lobes, grids, across_z, w, 0.7, outs[0], norms[0])
-        KG._sweep_one_colour(medium, lobes, grids, across_z, w, 0.7, outs[1], norms[1])
+        KG._sweep(medium, lobes, grids, across_z, w, 0.7, outs[0], norms[0], np.array([0.3]))
+        KG._sweep_one_colour(medium, lobes, grids, across_z, w, 0.7, outs[1], norms[1], 0.3)
         assert outs[0].max() > 0
         np.testing.assert_array_equal(outs[1], outs[0])
         np.testing.assert_array_equal(norms[1], norms[0])
+
+
+def sky_scene(zenith=(0.3, 0.5, 1.0), horizon=(0.6, 0.6, 0.7), ground=(0.1, 0.1, 0.1), **medium):
+    """small_scene's cloud under an analytic sky alone (8 lights), 12 gathered directions."""
+    return popvol.scene_from_dict({
+        "medium": {"type": "procedural", "resolution": 10, "seed": 3, "scale": 30.0, "albedo": 0.95, "g": 0.6,
+                   **medium},
+        "lights": [{"type": "sky", "zenith": list(zenith), "horizon": list(horizon), "ground": list(ground),
+                    "lights": 8}],
+        "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0, "width": 24, "height": 16},
+        "method": {"resolution": 12, "gather": 12}})
+
+
+def test_environment_enters_the_gather_through_the_grids_faces():
+    """The regions of an environment map are gathered: the light entering the grid along each
+    direction is the map's radiance from the opposite direction (renderer.gathered_environment),
+    then transported as the lobes' light is; the grey RGB sweep (kernels.gather._sweep_grey)
+    against the twin's transport of the same boundary, and the same scene without the boundary
+    darker (its first scattering is the boundary's)."""
+    from popvol.kernels.render import background_radiance
+    scene = sky_scene()
+    sol = popvol.solve(scene)
+    env, regions = renderer.gathered_environment(scene, sol)
+    assert regions.all() and env.shape == scene.environment.radiance.shape
+    medium, lights = renderer.render_inputs(scene, sol)[:2]
+    seen = voxels_seen(scene.medium.density)
+    eye = np.asarray(scene.camera.origin, float)
+    got = renderer.gather(medium, lights, renderer.field_bundles(sol), eye, seen, 12, environment=env)
+    dirs, weights = renderer.gather_directions(12)
+    boundary = np.array([background_radiance(env, -w) for w in dirs])
+    expect = ref.gathered_source(scene, sol, dirs, weights, boundary)
+    np.testing.assert_allclose(got, expect, rtol=2e-4, atol=1e-6 * expect.max())
+    closed = renderer.gather(medium, lights, renderer.field_bundles(sol), eye, seen, 12)
+    assert closed.sum() < 0.6 * got.sum()
+
+
+def test_grey_rgb_sweep_is_the_rgb_sweep():
+    """A change detector, named as one: kernels.gather._sweep_grey is _sweep's arithmetic with
+    the channels written out, so the two agree to float rounding, direction by direction
+    (axis-aligned and oblique), with light entering the grid."""
+    from popvol.kernels import gather as KG
+    scene = sky_scene()
+    sol = popvol.solve(scene)
+    medium, lights = renderer.render_inputs(scene, sol)[:2]
+    seen = voxels_seen(scene.medium.density)
+    _, _, medium, grids, across_z, lobes, colour = renderer.gather_state(medium, lights, renderer.field_bundles(sol),
+                                                                         seen, 1, True)
+    assert colour is None
+    to_eye = KG.eye_directions(medium, np.asarray(scene.camera.origin, np.float64), grids[4])
+    grids, across_z = grids + (to_eye,), across_z + (renderer.z_first(to_eye),)
+    dirs = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0], [0.6, -0.64, 0.48], [-0.3, 0.2, -0.93]])
+    for w in dirs / np.linalg.norm(dirs, axis=1)[:, None]:
+        outs = [np.zeros(grids[0].shape + (3,), np.float32) for _ in range(2)]
+        norms = [np.zeros(grids[0].shape, np.float32) for _ in range(2)]
+        KG._sweep(medium, lobes, grids, across_z, w, 0.7, outs[0], norms[0], np.array([0.2, 0.3, 0.4]))
+        KG._sweep_grey(medium, lobes, grids, across_z, w, 0.7, outs[1], norms[1], np.array([0.2, 0.3, 0.4]))
+        assert outs[0].max() > 0
+        np.testing.assert_allclose(outs[1], outs[0], rtol=1e-5, atol=1e-7 * outs[0].max())
+        np.testing.assert_array_equal(norms[1], norms[0])
+
+
+@pytest.mark.parametrize("scale, within", [(2.0, 0.02), (30.0, 0.06)])
+def test_uniform_environment_keeps_a_white_medium_at_its_radiance(scale, within):
+    """In an isotropic radiance field L0 a medium that absorbs nothing changes nothing: every
+    ray leaves it with L0, whatever its density and phase function (the equilibrium of the
+    transport equation). A cloud of albedo 1 under a uniform sky of L0 = 1 renders every pixel
+    that sees it at 1: within 2 % at an optical depth of 2 along the view (measured 0.993-1.010),
+    within 6 % at 30 (0.954-1.039); lit from the lobes instead of gathered (a 32x24 view) the
+    worst pixels were 0.942 and 0.898."""
+    scene = sky_scene((1.0, 1.0, 1.0), (1.0, 1.0, 1.0), (1.0, 1.0, 1.0), albedo=1.0, scale=scale, resolution=16)
+    scene = apply_overrides(scene, resolution=16, gather=64)
+    img = popvol.render(scene, popvol.solve(scene))
+    seen = metrics.camera_optical_depth(scene) > 0.05
+    assert seen.sum() > 80
+    assert np.abs(img[seen] - 1.0).max() < within
 
 
 def test_gather_changes_only_the_rendering():
@@ -319,26 +394,27 @@ def test_gather_state_hands_the_kernels_c_ordered_masks():
             assert seen_box.flags.c_contiguous and grids[4].flags.c_contiguous, (cropped, factor)
 
 
-def test_environment_lights_are_lit_from_their_lobes():
-    """An environment's lights (a0 < 1) have no unscattered part to scatter once at the samples,
-    and the gather gathers only the medium's light: so they are lit from their lobes at every
-    sample, with or without the gather (a sky alone is not gathered at all: the same image),
-    while a sun beside them is gathered."""
+def test_environment_regions_are_gathered_and_relit_with_their_lights():
+    """An environment's regions (a0 < 1) have no unscattered part to scatter once at the
+    samples: the gather takes their first scattering from the map, entering through the grid's
+    faces, so a sky alone is gathered (another image than its lobes give, gather = 0). The
+    gathered light is linear in the lights' powers, the map's light scaled with its regions'
+    (renderer.gathered_environment): the sun and the sky lit together are the sun alone plus
+    the sky alone, over the background that each render holds once; the sun alone is the sun's
+    own scene."""
     sky = {"type": "sky", "lights": 4}
     base = {"medium": {"type": "procedural", "resolution": 12, "seed": 3, "scale": 8.0, "albedo": 0.95, "g": 0.6},
             "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0, "width": 32, "height": 20},
             "method": {"resolution": 12}}
     scene = popvol.scene_from_dict({**base, "lights": [sky]})
     sol = popvol.solve(scene)
-    assert not sol.unscattered.any()
+    assert not sol.unscattered.any() and all(light.map_region for light in scene.lights)
     gathered = popvol.render(scene, sol, jitter=False)
     plain = popvol.render(apply_overrides(scene, gather=0), sol, jitter=False)
-    np.testing.assert_array_equal(gathered, plain)
+    assert not np.allclose(gathered, plain, rtol=0.01)
     scene = popvol.scene_from_dict({**base, "lights": [SUN, sky]})
     sol = popvol.solve(scene)
     assert list(sol.unscattered) == [True] + [False] * (len(sol.unscattered) - 1)
-    # the image is the sun's gathered light plus the sky's lit from its lobes (as without the
-    # gather), over the background that each render holds once
     dark = (lambda l: dataclasses.replace(l, irradiance=np.zeros(3)))
     sun_only = sol.relit([scene.lights[0]] + [dark(l) for l in scene.lights[1:]])
     sky_only = sol.relit([dark(scene.lights[0])] + scene.lights[1:])
@@ -346,17 +422,12 @@ def test_environment_lights_are_lit_from_their_lobes():
     both = popvol.render(scene, sol, jitter=False)
     sun = popvol.render(scene, sun_only, jitter=False)
     background = popvol.render(scene, none, jitter=False)
-    sky = popvol.render(apply_overrides(scene, gather=0), sky_only, jitter=False)
+    sky = popvol.render(scene, sky_only, jitter=False)
     assert (sun - background).max() > 0 and (sky - background).max() > 0
+    np.testing.assert_allclose(both + background, sun + sky, rtol=1e-4, atol=1e-5 * both.max())
     alone = popvol.scene_from_dict({**base, "lights": [SUN]})          # the sun gathered by itself
     sun_alone = popvol.render(alone, popvol.solve(alone), jitter=False)
     np.testing.assert_allclose(sun - background, sun_alone, rtol=1e-4, atol=1e-6 * sun_alone.max())
-    # (not bitwise: without the gather the samples near the camera are lit light by light, which
-    # on this close-up moves the sky's image by relMSE 7e-4 and x1.0003; the lost first scattering
-    # of an environment made the cloud under an HDR map x0.87)
-    from popvol import metrics
-    assert metrics.relmse(both + background, sun + sky, metrics.luminance_mask(sun + sky)) < 2e-3
-    assert metrics.brightness_ratio(both + background, sun + sky) == pytest.approx(1.0, abs=2e-3)
 
 
 @pytest.mark.parametrize("r_over_R", [0.0, 0.3, 0.99, 1.0, 1.01, 2.0, 3.9, 4.1, 10.0, 1e3])

@@ -477,13 +477,15 @@ def _bilinear_slice(buf, u, v):
             + fu * ((1 - fv) * buf[i1, j0] + fv * buf[i1, j1]))
 
 
-def gathered_source(scene, solution, dirs, weights):
-    """Twin of kernels.gather.gathered_source for suns (the point lights' walk lobes are not
-    lit here), divided by its phase quadrature: float64 (nx, ny, nz, 3), the light reaching
-    each voxel from each direction w (radiance transported slice by slice across the axis where
-    |w| is largest, from the lobes' light toward w, sigma_t and emission linear along each
-    upstream segment, half a segment in the first slice), scattered toward the camera with
-    f_hg, at the voxels the renderer reads; 0 elsewhere."""
+def gathered_source(scene, solution, dirs, weights, boundary=None):
+    """Twin of kernels.gather.gathered_source for directional lights (the point lights' walk
+    lobes are not lit here), divided by its phase quadrature: float64 (nx, ny, nz, 3), the light
+    reaching each voxel from each direction w (radiance transported slice by slice across the
+    axis where |w| is largest, from the lobes' light toward w, sigma_t and emission linear along
+    each upstream segment, half a segment in the first slice; ``boundary`` (N, 3), the radiance
+    entering the grid along each direction, at the first slice and wherever the point upstream
+    is outside the grid; None: 0), scattered toward the camera with f_hg, at the voxels the
+    renderer reads; 0 elsewhere."""
     from popvol.pipeline import voxels_seen
     med = scene.medium
     rho = med.density.astype(np.float64)
@@ -495,7 +497,8 @@ def gathered_source(scene, solution, dirs, weights):
     to_eye = np.asarray(scene.camera.origin, float) - centres
     to_eye /= np.maximum(np.linalg.norm(to_eye, axis=-1, keepdims=True), 1e-300)
     out, norm = np.zeros(med.shape + (3,)), np.zeros(med.shape)
-    for w, wt in zip(dirs, weights):
+    boundary = np.zeros((len(dirs), 3)) if boundary is None else np.asarray(boundary, np.float64)
+    for w, wt, entering in zip(dirs, weights, boundary):
         J = np.where(rho[..., None] > 0, _grid_lit(scene, solution, np.broadcast_to(-w, med.shape + (3,))), 0.0)
         q = sig * (alb[..., None] * alb_rgb) * J
         a = int(np.argmax(np.abs(w)))
@@ -512,10 +515,13 @@ def gathered_source(scene, solution, dirs, weights):
                 for r in range(q_s.shape[2]):
                     for ch in range(3):
                         sv, qv = sig_s[s, p, r, ch], q_s[s, p, r, ch]
+                        u, v = p + ob, r + oc
                         if step == 0:
-                            l_up, q_up, s_up, path = 0.0, qv, sv, 0.5 * ell
+                            l_up, q_up, s_up, path = entering[ch], qv, sv, 0.5 * ell
+                        elif not (-0.5 <= u <= L.shape[1] - 0.5 and -0.5 <= v <= L.shape[2] - 0.5):
+                            l_up, q_up, s_up, path = entering[ch], 0.0, 0.0, ell    # from outside the grid
                         else:
-                            l_up, q_up, s_up = (_bilinear_slice(f[prev, :, :, ch], p + ob, r + oc)
+                            l_up, q_up, s_up = (_bilinear_slice(f[prev, :, :, ch], u, v)
                                                 for f in (L, q_s, sig_s))
                             path = ell
                         sbar = 0.5 * (s_up + sv)

@@ -19,6 +19,7 @@ is taken out first as a light of its own; median cut alone would split it among 
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,15 +136,30 @@ def decompose(env: EnvMap, k: int) -> list[DirectionalLight]:
     rad = env.radiance.astype(np.float64)
     H, W = rad.shape[:2]
     d, omega = texel_geometry(H, W)
-    lum = rad @ LUMINANCE
-    mean = (lum * omega).sum() / (4 * np.pi)
     lights = []
-    if k > 1 and mean > 0 and lum.max() > SUN_CONTRAST * mean:
-        sun = lum > 0.5 * lum.max()
-        lights.append(_region_light(rad, d, omega, sun, f"{env.source}: sun"))
+    sun = sun_texels(env)
+    if k > 1 and sun.any():
+        lights.append(dataclasses.replace(_region_light(rad, d, omega, sun, f"{env.source}: sun"), a0=1.0))
         rad = np.where(sun[..., None], 0.0, rad)
         k -= 1
-    return lights + _median_cut_lights(rad, d, omega, k, env.source)
+    regions = _median_cut_lights(rad, d, omega, k, env.source)
+    for light in regions:       # regions of the map without its sun (not: one light holding it)
+        light.map_region = bool(lights) or not sun.any()
+        if lights:
+            light.texels = light.texels & ~sun
+    return lights + regions
+
+
+def sun_texels(env: EnvMap) -> np.ndarray:
+    """bool (H, W): the map's sun, the texels brighter than half the brightest if that is
+    SUN_CONTRAST times the map's mean luminance (none otherwise)."""
+    rad = env.radiance.astype(np.float64)
+    _, omega = texel_geometry(*rad.shape[:2])
+    lum = rad @ LUMINANCE
+    mean = (lum * omega).sum() / (4 * np.pi)
+    if mean > 0 and lum.max() > SUN_CONTRAST * mean:
+        return lum > 0.5 * lum.max()
+    return np.zeros(lum.shape, bool)
 
 
 def _region_light(rad, d, omega, mask, source) -> DirectionalLight:
@@ -158,7 +174,7 @@ def _region_light(rad, d, omega, mask, source) -> DirectionalLight:
     else:
         a0 = float(np.linalg.norm(m) / lum.sum())
     direction = -m / np.linalg.norm(m) if np.linalg.norm(m) > 0 else np.array([0.0, -1.0, 0.0])
-    return DirectionalLight(direction, E, a0=min(a0, 1.0), source=source, from_environment=True)
+    return DirectionalLight(direction, E, a0=min(a0, 1.0), source=source, from_environment=True, texels=mask)
 
 
 def _median_cut_lights(rad, d, omega, k, source) -> list[DirectionalLight]:

@@ -7,7 +7,7 @@ import numpy as np
 
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, eye_directions, gathered_source
-from .kernels.render import EDGE_DEPTH, render_kernel, substeps
+from .kernels.render import EDGE_DEPTH, background_radiance, render_kernel, substeps
 from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import medium_key, seen_voxels, solve, voxels_seen
@@ -101,19 +101,22 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
               np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_))
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
-    gathering = m.gather > 0 and not solution.single and bool(solution.unscattered.any())
+    environment, regions = gathered_environment(scene, solution)
+    gathering = m.gather > 0 and not solution.single and bool((solution.unscattered | regions).any())
     if gathering:
         # the scattered light toward the camera gathered on the grid from the lights with an
-        # unscattered part; the samples add their single scattering and all the light of the
-        # others (an environment's), whose first scattering the gather cannot make (docs/METHOD.md,
-        # "Gathered last bounce")
-        own = solution.unscattered
+        # unscattered part and the regions of an environment map, whose first scattering is the
+        # map's light entering through the grid's faces; the samples add the single scattering of
+        # the first and all the light of the others (a map's sun), whose first scattering the
+        # gather cannot make (docs/METHOD.md, "Gathered last bounce")
+        own = solution.unscattered | regions
         grid, spherical = field_bundles(solution)
         eye = np.asarray(cam.origin, np.float64)
         # the gather is light transport: it sees the capped density, as the walk did
         transport = med.transport_medium()
         factor = gather_factor(transport, m.gather_resolution)
-        args = ((transport.density,) + medium[1:], *only_lights(own, lights, grid, spherical), seen, factor)
+        args = ((transport.density,) + medium[1:], *only_lights(own, lights, grid, spherical), seen, factor,
+                environment is not None)
         # made once per fields, medium and lights and kept with the solution (Solution.cache):
         # a camera move gathers again from it
         fields = grid[:5] + spherical[:1]
@@ -123,7 +126,8 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
             # holding the medium and the fields keeps the ids in the key theirs
             kept = (key, (transport, fields), gather_state(*args))
             solution.cache["gather"] = kept
-        gathered = gather(*args[:3], eye, seen, m.gather, factor, gather_cap(cam), state=kept[2])
+        gathered = gather(*args[:3], eye, seen, m.gather, factor, gather_cap(cam), state=kept[2],
+                          environment=environment)
         if not own.all():                 # the others' light, all of it, from their lobes
             others, (others_grid, others_spherical) = only_lights(~own, lights, grid, spherical)
             in_scattering_source(medium, others, others_grid, others_spherical, eye, seen, gathered,
@@ -254,8 +258,29 @@ def gather_cap(camera) -> tuple[np.ndarray, float]:
     return -camera.basis()[0], float(min(half_diagonal + GATHER_CAP_MARGIN, np.radians(120.0)))
 
 
+def gathered_environment(scene, solution) -> tuple[np.ndarray | None, np.ndarray]:
+    """(the environment map whose light the gather lets in through the grid's faces, float32
+    (H, 2H, 3); bool (n_lights,), the lights it stands for: the map's median-cut regions,
+    ``DirectionalLight.map_region``, not its sun). Each region's texels are scaled by its
+    light's power in the solution over the power the scene gives it (1 but where the solution
+    was relit). (None, all False) where the scene has no such light, or the solution is not
+    of the scene's lights."""
+    n = len(solution.unscattered)
+    regions = np.array([getattr(light, "map_region", False) for light in scene.lights], bool)
+    if scene.environment is None or not regions.any() or len(regions) != n:
+        return None, np.zeros(n, bool)
+    env = scene.environment.radiance
+    out = np.zeros(env.shape, np.float32)
+    for i in np.flatnonzero(regions):
+        light = scene.lights[i]
+        own = np.asarray(light.power, np.float64)
+        scale = np.divide(solution.irradiance[i], own, out=np.zeros(3), where=own > 0)
+        out[light.texels] += (env[light.texels] * scale).astype(np.float32)
+    return out, regions
+
+
 def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1, cap=None,
-           state: tuple | None = None) -> np.ndarray:
+           state: tuple | None = None, environment=None) -> np.ndarray:
     """float32 (nx, ny, nz, 3): the scattered light gathered toward the camera at ``eye`` from
     ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere.
 
@@ -269,14 +294,18 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     :func:`gather_state` makes of the same medium, lights, bundles, seen and factor, if the
     caller kept it (it does not depend on the camera)."""
     box, seen_box, medium, grids, across_z, lobes, colour = state or gather_state(medium, lights, bundles, seen,
-                                                                                  factor)
+                                                                                  factor, environment is not None)
     needed = grids[4]
     dirs, weights = gather_directions(n_directions, *(cap or (None, 0.0)))
+    boundary = np.zeros((len(dirs), 1 if colour is not None else 3))
+    if environment is not None:                 # the radiance arriving along w comes from -w
+        boundary[:] = [background_radiance(environment, -w) for w in dirs]
     lanes = min(GATHER_LANES, n_directions)
     out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
     norm = np.zeros((lanes,) + needed.shape, np.float32)
     to_eye = eye_directions(medium, eye, needed)
-    gathered_source(medium, lobes, grids + (to_eye,), across_z + (z_first(to_eye),), dirs, weights, out, norm)
+    gathered_source(medium, lobes, grids + (to_eye,), across_z + (z_first(to_eye),), dirs, weights, out, norm,
+                    boundary)
     norm = norm.sum(axis=0, dtype=np.float64)
     light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
     light = (light * colour if colour is not None else light).astype(np.float32)
@@ -291,7 +320,7 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     return full
 
 
-def gather_state(medium, lights, bundles, seen, factor: int = 1) -> tuple:
+def gather_state(medium, lights, bundles, seen, factor: int = 1, environment: bool = False) -> tuple:
     """What :func:`gather` transports, made before the camera is known: (the box, the seen
     voxels in it, the medium bundle of the transport grid, its grids (density, albedo, g, the
     lobes' row of each cell (int64, -1 where empty), the cells that are read back) and the same
@@ -313,11 +342,14 @@ def gather_state(medium, lights, bundles, seen, factor: int = 1) -> tuple:
     slot = np.full(density.shape, -1, np.int64)
     slot[tuple(cells.T)] = np.arange(len(cells))
     # one light in a grey medium emits one colour: transport one channel, times the colour
-    colour = one_colour(medium, lights, grid)
+    colour = None if environment else one_colour(medium, lights, grid)
     if colour is not None:
         lights = lights[:2] + (np.ones_like(lights[2]),) + lights[3:]
     lobes = np.zeros((len(cells), 3 * len(lights[0]) * grid[0].shape[1], 7), np.float32)
     emission_lobes(medium, lights, grid, spherical, cells, lobes)
+    # the lobes that hold light somewhere (a light's kinds of lobe that are empty everywhere, as
+    # the direct lobe of an environment's lights, cost every cell a test in every sweep)
+    lobes = np.ascontiguousarray(lobes[:, np.any(lobes[:, :, 4:] != 0, axis=(0, 2))])
     grids = (density, medium[2], medium[4], slot, needed)
     return box, seen_box, medium, grids, tuple(map(z_first, grids)), lobes, colour
 

@@ -174,7 +174,7 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
+def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, boundary):
     """Add to ``out`` float32 (lanes, nx, ny, nz, C) the gathered L_s / sigma_s toward the
     camera (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
     quadrature's sum, at the voxels where ``needed``; the caller sums the lanes and divides.
@@ -198,9 +198,12 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm):
     for lane in nb.prange(lanes):
         for i in range(lane, dirs.shape[0], lanes):
             if out.shape[4] == 1:
-                _sweep_one_colour(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
+                _sweep_one_colour(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane],
+                                  boundary[i, 0])
+            elif _grey(medium[1]):
+                _sweep_grey(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane], boundary[i])
             else:
-                _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane])
+                _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane], boundary[i])
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
@@ -268,16 +271,15 @@ def _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz):
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
+def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
     """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
     weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
     times f_hg to ``norm`` (nx, ny, nz) where ``needed``. grids: (density, albedo, g, slot,
     needed, to_eye (:func:`eye_directions`)); across_z: the same with the z axis first
     read by a direction swept across z (:func:`gathered_source`)."""
     scale, albedo_rgb = medium[1], medium[3]
-    n_lobes = lobes.shape[1]
     n_out = out.shape[3]
-    grey = scale[0] == scale[1] and scale[1] == scale[2]
+    grey = _grey(scale)
     w0, w1, w2 = w[0], w[1], w[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
@@ -296,17 +298,7 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
                 alb = 0.0
                 row = slot[rx, ry, rz]
                 if row >= 0:
-                    for k in range(n_lobes):
-                        l0 = lobes[row, k, 4]
-                        l1 = lobes[row, k, 5] if n_out == 3 else 0.0
-                        l2 = lobes[row, k, 6] if n_out == 3 else 0.0
-                        if l0 == 0.0 and l1 == 0.0 and l2 == 0.0:
-                            continue
-                        f = f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2,
-                                 lobes[row, k, 3])
-                        j0 += l0 * f
-                        j1 += l1 * f
-                        j2 += l2 * f
+                    j0, j1, j2 = _emitted(lobes, row, w0, w1, w2, n_out)
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
                 t = wgt = 0.0
@@ -314,10 +306,12 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
                     sig = scale[ch] * rho
                     qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
                     if step == 0:
-                        l_up, q_up = 0.0, qv
-                    else:
+                        l_up, q_up = boundary[ch], qv
+                    elif su[0][p] and sv[0][q]:
                         l_up = _bilinear(prev, su, sv, p, q, 0, ch)
                         q_up = _bilinear(prev, su, sv, p, q, 1, ch)
+                    else:                           # upstream of the grid: what enters it
+                        l_up, q_up = boundary[ch], 0.0
                     if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
                         t, wgt = _segment(sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch), sig, path)
                     cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
@@ -331,8 +325,100 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm):
         prev, cur = cur, prev
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _emitted(lobes, row, w0, w1, w2, n_out):
+    """The light of lobe row ``row`` toward (w0, w1, w2), per colour (the last two 0 where
+    n_out = 1): sum over its lobes of weight f_hg(axis . w; g A), empty lobes passed over."""
+    j0 = j1 = j2 = 0.0
+    for k in range(lobes.shape[1]):
+        l0 = lobes[row, k, 4]
+        l1 = lobes[row, k, 5] if n_out == 3 else 0.0
+        l2 = lobes[row, k, 6] if n_out == 3 else 0.0
+        if l0 == 0.0 and l1 == 0.0 and l2 == 0.0:
+            continue
+        f = f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2, lobes[row, k, 3])
+        j0 += l0 * f
+        j1 += l1 * f
+        j2 += l2 * f
+    return j0, j1, j2
+
+
+@nb.njit(inline="always", cache=True)
+def _grey(scale):
+    """Whether sigma_t per density is the same in the three channels."""
+    return scale[0] == scale[1] and scale[1] == scale[2]
+
+
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm):
+def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
+    """:func:`_sweep` in RGB (out (nx, ny, nz, 3)) where sigma_t is grey (:func:`_grey`): the same
+    arithmetic with the three channels written out, one segment's transmittance for all three
+    and the upstream point's bilinear weights made once."""
+    scale_0, albedo_rgb = medium[1][0], medium[3]
+    w0, w1, w2 = w[0], w[1], w[2]
+    b0, b1, b2 = boundary[0], boundary[1], boundary[2]
+    a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
+    density, albedo, g_grid, slot, needed, to_eye = read
+    prev = np.zeros((nb_, nc_, 7))          # L_in (3), q (3) and sigma_t of the slice before ...
+    cur = np.zeros((nb_, nc_, 7))           # ... and of this one
+    for step in range(na):
+        s = step if wa > 0 else na - 1 - step
+        path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
+        for p in range(nb_):
+            inside_p, i0, i1, fu = su[0][p], su[1][p], su[2][p], su[3][p]
+            for q in range(nc_):
+                ix, iy, iz = _voxel(a, s, p, q)
+                rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)
+                j0 = j1 = j2 = 0.0
+                alb = 0.0
+                row = slot[rx, ry, rz]
+                if row >= 0:
+                    j0, j1, j2 = _emitted(lobes, row, w0, w1, w2, 3)
+                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
+                sig = scale_0 * density[rx, ry, rz]
+                q0 = sig * alb * albedo_rgb[0] * j0
+                q1 = sig * alb * albedo_rgb[1] * j1
+                q2 = sig * alb * albedo_rgb[2] * j2
+                if step == 0:
+                    t, wgt = _segment(sig, sig, path)
+                    u0, u1, u2 = b0, b1, b2
+                    v0, v1, v2 = q0, q1, q2
+                elif inside_p and sv[0][q]:
+                    k0, k1, fv = sv[1][q], sv[2][q], sv[3][q]
+                    e00, e01, e10, e11 = (1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv
+                    u0 = e00 * prev[i0, k0, 0] + e01 * prev[i0, k1, 0] + e10 * prev[i1, k0, 0] + e11 * prev[i1, k1, 0]
+                    u1 = e00 * prev[i0, k0, 1] + e01 * prev[i0, k1, 1] + e10 * prev[i1, k0, 1] + e11 * prev[i1, k1, 1]
+                    u2 = e00 * prev[i0, k0, 2] + e01 * prev[i0, k1, 2] + e10 * prev[i1, k0, 2] + e11 * prev[i1, k1, 2]
+                    v0 = e00 * prev[i0, k0, 3] + e01 * prev[i0, k1, 3] + e10 * prev[i1, k0, 3] + e11 * prev[i1, k1, 3]
+                    v1 = e00 * prev[i0, k0, 4] + e01 * prev[i0, k1, 4] + e10 * prev[i1, k0, 4] + e11 * prev[i1, k1, 4]
+                    v2 = e00 * prev[i0, k0, 5] + e01 * prev[i0, k1, 5] + e10 * prev[i1, k0, 5] + e11 * prev[i1, k1, 5]
+                    s_up = e00 * prev[i0, k0, 6] + e01 * prev[i0, k1, 6] + e10 * prev[i1, k0, 6] + e11 * prev[i1, k1, 6]
+                    t, wgt = _segment(s_up, sig, path)
+                else:                                       # upstream of the grid: what enters it
+                    t, wgt = _segment(0.0, sig, path)
+                    u0, u1, u2 = b0, b1, b2
+                    v0 = v1 = v2 = 0.0
+                l0 = u0 * t + 0.5 * (v0 + q0) * wgt
+                l1 = u1 * t + 0.5 * (v1 + q1) * wgt
+                l2 = u2 * t + 0.5 * (v2 + q2) * wgt
+                cur[p, q, 0] = l0
+                cur[p, q, 1] = l1
+                cur[p, q, 2] = l2
+                cur[p, q, 3] = q0
+                cur[p, q, 4] = q1
+                cur[p, q, 5] = q2
+                cur[p, q, 6] = sig
+                if needed[rx, ry, rz]:
+                    f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
+                    norm[ix, iy, iz] += f
+                    out[ix, iy, iz, 0] += f * l0
+                    out[ix, iy, iz, 1] += f * l1
+                    out[ix, iy, iz, 2] += f * l2
+        prev, cur = cur, prev
+
+
+@nb.njit(fastmath=True, cache=True, nogil=True)
+def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
     """:func:`_sweep` where every lobe has one colour (out (nx, ny, nz, 1)): the lobes' first
     weight transported with sigma_t's first channel, the same arithmetic in the same order
     without the loop over channels (so the same bits), the upstream point's three bilinear
@@ -365,7 +451,7 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm):
                 sig = scale_0 * density[rx, ry, rz]
                 qv = sig * alb * albedo_0 * j
                 if step == 0:
-                    l_up, q_up, s_up = 0.0, qv, sig
+                    l_up, q_up, s_up = boundary, qv, sig
                 elif inside_p and sv[0][q]:
                     j0, j1, fv = sv[1][q], sv[2][q], sv[3][q]
                     l_up = ((1 - fu) * ((1 - fv) * prev[0, i0, j0] + fv * prev[0, i0, j1])
@@ -374,8 +460,8 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm):
                             + fu * ((1 - fv) * prev[1, i1, j0] + fv * prev[1, i1, j1]))
                     s_up = ((1 - fu) * ((1 - fv) * prev[2, i0, j0] + fv * prev[2, i0, j1])
                             + fu * ((1 - fv) * prev[2, i1, j0] + fv * prev[2, i1, j1]))
-                else:                                       # upstream of the grid: nothing
-                    l_up = q_up = s_up = 0.0
+                else:                                       # upstream of the grid: what enters it
+                    l_up, q_up, s_up = boundary, 0.0, 0.0
                 t, wgt = _segment(s_up, sig, path)
                 light = l_up * t + 0.5 * (q_up + qv) * wgt
                 cur[0, p, q] = light

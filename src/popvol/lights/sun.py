@@ -7,6 +7,7 @@ plane perpendicular to that direction. Its domain is walked once for unit irradi
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -30,6 +31,10 @@ class DirectionalLight(Light):
         a0: anisotropy of the injected lobe about ``direction`` (1 = perfectly collimated).
         from_environment: one of the K lights an environment map was decomposed into (the
             reference export lights the scene with the map itself instead).
+        map_region: one of the median-cut regions of that map (not its sun): the gathered
+            last bounce takes this light's first scattering from the map itself, its texels
+            (``texels``, bool (H, W)) scaled by the light's power over theirs
+            (renderer.gathered_environment).
     """
 
     type: ClassVar[str] = "directional"
@@ -41,6 +46,8 @@ class DirectionalLight(Light):
     a0: float = 1.0
     source: str = "<light>"
     from_environment: bool = False
+    map_region: bool = False
+    texels: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def __post_init__(self):
         d = check.vector(self.direction, *self.field("direction"), nonzero=True)
