@@ -170,7 +170,7 @@ KNOBS: tuple[Knob, ...] = (
          "and scatters it toward the camera with the phase function, instead of lighting the voxel "
          "from the fields' lobes; only the single scattering is lit per sample (docs/METHOD.md, "
          "\"Gathered last bounce\"). 0 lights every sample from the lobes: faster, and "
-         "1.0-4.9x further from Mitsuba at 128 cells (docs/ACCURACY.md).", cli=("render", "compare")),
+         "1.1-4.9x further from Mitsuba at 128 cells (docs/ACCURACY.md).", cli=("render", "compare")),
     Knob("gather_resolution", 64, (0, 4096), "Blocks along the longest side of the gather's grid.",
          "The light is gathered on blocks of f^3 voxels of the medium, the fewest with at most this "
          "many blocks along the grid's longest side but none wider than half a mean free path where "
