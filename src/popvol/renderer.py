@@ -292,7 +292,9 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     the edge), so the sweeps cost about factor^-3 as much. ``cap``: (axis, half-angle) of
     gather_directions' cap, or None for directions on the whole sphere. ``state``: what
     :func:`gather_state` makes of the same medium, lights, bundles, seen and factor, if the
-    caller kept it (it does not depend on the camera)."""
+    caller kept it (it does not depend on the camera). ``environment``: the map whose light
+    enters the grid (:func:`gathered_environment`), float32 (H, 2H, 3), or None: nothing
+    enters; the radiance arriving along a direction w is the map's from -w."""
     box, seen_box, medium, grids, across_z, lobes, colour = state or gather_state(medium, lights, bundles, seen,
                                                                                   factor, environment is not None)
     needed = grids[4]
@@ -326,7 +328,8 @@ def gather_state(medium, lights, bundles, seen, factor: int = 1, environment: bo
     lobes' row of each cell (int64, -1 where empty), the cells that are read back) and the same
     z first (:func:`z_first`), as kernels.gather.gathered_source takes them but the eye's, the
     lobes (kernels.gather.emission_lobes), the one colour of the light or None:
-    :func:`one_colour`)."""
+    :func:`one_colour`, always None with an ``environment`` entering the grid, whose light has
+    colours of its own)."""
     grid, spherical = bundles
     box = occupied_box((medium[0] > 0) | seen, GATHER_MARGIN)
     medium, grid = crop_bundles(medium, grid, box)

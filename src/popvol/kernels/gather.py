@@ -14,8 +14,9 @@ L_s(x', w_i) (the lobes of kernels/render.py, single scattering included) by one
 direction over a grid (the medium's voxels, or blocks of them with the fields averaged over
 each block: renderer.gather) by short characteristics:
 slices are taken across the axis a along which |w_i| is largest, in the direction w_i travels,
-and each voxel takes the radiance from the point one slice upstream (bilinear in that slice, 0
-outside the grid) over the path l = voxel[a] / |w_i[a]| (half of it in the first slice, from the
+and each voxel takes the radiance from the point one slice upstream (bilinear in that slice;
+outside the grid, and in the first slice, the radiance entering it along w_i: an environment
+map's light from -w_i, renderer.gathered_environment, or 0) over the path l = voxel[a] / |w_i[a]| (half of it in the first slice, from the
 grid's face), with sigma_t and the emission per unit length q = sigma_s L_s(., w_i) / sigma_s
 (the lobes' light toward w_i times sigma_s, albedo included) taken linear along it, per colour
 channel:
@@ -191,8 +192,9 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, bo
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
     directions one after another (so the sum does not depend on the number of threads). One
     colour has its own sweep (:func:`_sweep_one_colour`): the same arithmetic without the loop
-    over channels.
-    dirs float64 (N, 3) unit directions of travel, weights float64 (N,). medium: the render
+    over channels; so has RGB in a grey medium (:func:`_sweep_grey`).
+    dirs float64 (N, 3) unit directions of travel, weights float64 (N,); boundary float64 (N, C),
+    the radiance entering the grid along each direction (module docstring). medium: the render
     kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
     lanes = out.shape[0]
     for lane in nb.prange(lanes):
