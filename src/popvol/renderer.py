@@ -101,8 +101,10 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
               np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_))
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
-    environment, regions = gathered_environment(scene, solution)
-    gathering = m.gather > 0 and not solution.single and bool((solution.unscattered | regions).any())
+    environment, regions = None, np.zeros(len(solution.unscattered), bool)
+    if m.gather > 0 and not solution.single:
+        environment, regions = gathered_environment(scene, solution)
+    gathering = bool((solution.unscattered | regions).any()) and m.gather > 0 and not solution.single
     if gathering:
         # the scattered light toward the camera gathered on the grid from the lights with an
         # unscattered part and the regions of an environment map, whose first scattering is the
@@ -264,19 +266,29 @@ def gathered_environment(scene, solution) -> tuple[np.ndarray | None, np.ndarray
     ``DirectionalLight.map_region``, not its sun). Each region's texels are scaled by its
     light's power in the solution over the power the scene gives it (1 but where the solution
     was relit). (None, all False) where the scene has no such light, or the solution is not
-    of the scene's lights."""
+    of the scene's lights. The map is made once per map and powers and kept with the solution
+    (``Solution.cache``), so that a camera move does not make it again."""
     n = len(solution.unscattered)
     regions = np.array([getattr(light, "map_region", False) for light in scene.lights], bool)
     if scene.environment is None or not regions.any() or len(regions) != n:
         return None, np.zeros(n, bool)
     env = scene.environment.radiance
-    out = np.zeros(env.shape, np.float32)
+    scales = []
     for i in np.flatnonzero(regions):
-        light = scene.lights[i]
-        own = np.asarray(light.power, np.float64)
-        scale = np.divide(solution.irradiance[i], own, out=np.zeros(3), where=own > 0)
-        out[light.texels] += (env[light.texels] * scale).astype(np.float32)
-    return out, regions
+        own = np.asarray(scene.lights[i].power, np.float64)
+        scales.append(np.divide(solution.irradiance[i], own, out=np.zeros(3), where=own > 0))
+    key = ("environment", id(env), tuple(map(id, (scene.lights[i].texels for i in np.flatnonzero(regions)))),
+           np.asarray(scales).tobytes())
+    kept = solution.cache.get("environment")
+    if kept is None or kept[0] != key:
+        out = np.zeros(env.shape, np.float32)
+        for i, scale in zip(np.flatnonzero(regions), scales):
+            texels = scene.lights[i].texels
+            out[texels] += (env[texels] * scale).astype(np.float32)
+        # holding the map and the texels keeps the ids in the key theirs
+        kept = (key, (env, [scene.lights[i].texels for i in np.flatnonzero(regions)]), out)
+        solution.cache["environment"] = kept
+    return kept[2], regions
 
 
 def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1, cap=None,

@@ -16,8 +16,8 @@ each block: renderer.gather) by short characteristics:
 slices are taken across the axis a along which |w_i| is largest, in the direction w_i travels,
 and each voxel takes the radiance from the point one slice upstream (bilinear in that slice;
 outside the grid, and in the first slice, the radiance entering it along w_i: an environment
-map's light from -w_i, renderer.gathered_environment, or 0) over the path l = voxel[a] / |w_i[a]| (half of it in the first slice, from the
-grid's face), with sigma_t and the emission per unit length q = sigma_s L_s(., w_i) / sigma_s
+map's light from -w_i, renderer.gathered_environment, or 0) over the path
+l = voxel[a] / |w_i[a]| (half of it in the first slice, from the grid's face), with sigma_t and the emission per unit length q = sigma_s L_s(., w_i) / sigma_s
 (the lobes' light toward w_i times sigma_s, albedo included) taken linear along it, per colour
 channel:
 
