@@ -81,8 +81,9 @@ def pending_rows(W):
 def kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally, runs=None, edges=None, work=None,
                  pending=None):
     """One kernels.ordinates.ordinates_sweep of the full-grid state W, Wa (float32 (12,) + shape,
-    updated in place): the kernel's columns are the cells not skipped (``runs`` > 0; None: no
-    cell skipped), which hold every packet; ``pending`` None: the rows holding packets.
+    updated in place): the kernel's state has one row (12 slots) per cell not skipped (``runs``
+    > 0; None: no cell skipped), which hold every packet; ``pending`` None: the rows holding
+    packets.
     Returns the packets sent."""
     shape = Th.shape
     runs = no_runs(shape) if runs is None else runs
@@ -90,12 +91,12 @@ def kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally, runs=None, edge
     assert not W[:, ~kept].any()
     cell = np.full(shape, -1, np.int32)
     cell[kept] = np.arange(kept.sum())
-    Wc, Wac = W[:, kept], Wa[:, kept]
+    Wc, Wac = np.ascontiguousarray(W[:, kept].T), np.ascontiguousarray(Wa[:, kept].T)
     sent = KO.ordinates_sweep(Wc, Wac, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F, np.float32(w_min),
                               *order, tally, np.array([0, shape[1]]) if edges is None else np.asarray(edges, np.int64),
                               np.zeros(shape[1]) if work is None else work, cell, runs,
                               pending_rows(W) if pending is None else pending)
-    W[:, kept], Wa[:, kept] = Wc, Wac
+    W[:, kept], Wa[:, kept] = Wc.T, Wac.T
     return sent
 
 

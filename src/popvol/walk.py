@@ -278,7 +278,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     Accumulates into phi, flux (float32 (3,) + shape, the first moment in the domain's frame)
     and tally, except in the ``skip`` cells (:func:`skipped_cells`; None: none), which light
     crosses a run at a time (kernels.cells.skip_runs, int16 (6,) + shape) and which hold no
-    packet. The pending state W, Wa is float32 (12, m), one column per cell not skipped (its
+    packet. The pending state W, Wa is float32 (m, 12), one row per cell not skipped (its
     index in ``cell``, int32, the domain's shape, -1 where skipped): the six ordinates, then
     per ordinate o the light that scattered in the cell's half of its way in along e_o
     (kernels/ordinates.py)."""
@@ -297,7 +297,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     if skip is not None:
         KC.skip_runs(~kept, runs)
     table = ordinate_table()
-    W = np.zeros((12, m), np.float32)
+    W = np.zeros((m, 12), np.float32)
     Wa = np.zeros_like(W)
     pending = np.zeros(shape[:2], np.uint8)
     # the injected light crosses half a cell to the first centres (a0 decayed by Dh there): in
@@ -307,8 +307,8 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     ahead = first < shape[0]
     k1, I, J = first[ahead], I[ahead], J[ahead]
     c = cell[k1, I, J]
-    W[0, c] = injection[ahead] * Th[k1, I, J]
-    Wa[0, c] = W[0, c] * np.float32(a0) * Dh[k1, I, J]
+    W[c, 0] = injection[ahead] * Th[k1, I, J]
+    Wa[c, 0] = W[c, 0] * np.float32(a0) * Dh[k1, I, J]
     pending[k1, I] = 1
     tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
     absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
@@ -322,7 +322,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
                                   it % 4 < 2, it % 8 < 4, tally, edges, row_work, cell, runs, pending)
-        return K.total_energy(W.reshape(12, 1, m)), sent
+        return K.total_energy(W.reshape(m, 1, 12)), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * n, injected, progress)
     return it, in_flight, absorbed, sent

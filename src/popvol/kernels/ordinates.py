@@ -7,11 +7,11 @@ sideways forgets it and lateral transport is a random walk of step h, however th
 (docs/ACCURACY_NOTES.md, the narrow beam). Here a cell holds one pending packet per lattice
 direction e_o (o = 0..5: +d, -d, +u, -u, +v, -v; o ^ 1 is the opposite of o):
 
-  W, Wa  float32 (12, m): power [W] pending in ordinate o of each cell that is not skipped
-         (below; cell (k, i, j) at column cell[k, i, j], int32 (n_d, n_u, n_v), -1 where
-         skipped), at its centre (after the receiver's half step), and power times the lobe's
-         anisotropy about e_o; then, in slot 6 + o, the light that scattered in the cell's
-         half of its way in along e_o, and its power times a_s (below).
+  W, Wa  float32 (m, 12): power [W] pending in ordinate o of each cell that is not skipped
+         (below; cell (k, i, j) at row cell[k, i, j], int32 (n_d, n_u, n_v), -1 where
+         skipped, its 12 slots side by side), at its centre (after the receiver's half step),
+         and power times the lobe's anisotropy about e_o; then, in slot 6 + o, the light that
+         scattered in the cell's half of its way in along e_o, and its power times a_s (below).
 
 A packet is sent across one transfer to the neighbour c along its own e_o (docs/METHOD.md, "Six
 ordinates"). The share S = Sh[s] Sh[c] of it that crosses unscattered (Sh = exp(-sigma_s h / 2),
@@ -41,7 +41,7 @@ the sweep runs it on threads as a pipeline of row groups that gives the bits of 
 
 Empty space (docs/METHOD.md, "Skipping empty space"): a skipped cell (empty, with no medium
 among its 26 neighbours, its fields read by no one: walk.skipped_cells) holds no packet and has
-no column in W. A part sent into one crosses the whole run of skipped cells ahead of it along
+no row in W. A part sent into one crosses the whole run of skipped cells ahead of it along
 its ordinate at once (``runs``, int16 (6, n_d, n_u, n_v), kernels.cells.skip_runs), unchanged
 (nothing scatters or is absorbed there), into the cell after the run or out of the domain;
 their phi and F stay 0. ``pending`` (uint8 (n_d, n_u)) marks the rows that hold a packet; a
@@ -88,9 +88,10 @@ def _deliver(W, Wa, Th, cell, runs, pending, q, k2, i2, j2, e, a, refl, trans, s
         absorbed += e * (1.0 - th2)
         e *= th2
         c = cell[k2, i2, j2]
-        W[q, c] += e
-        Wa[q, c] += e * a
-        pending[k2, i2] = 1
+        W[c, q] += e
+        Wa[c, q] += e * a
+        if pending[k2, i2] == 0:         # written once a sweep: the other thread reads this line
+            pending[k2, i2] = 1
     return refl, trans, side_out, absorbed
 
 
@@ -126,11 +127,14 @@ def _part(o, n, cone):
 
 
 @nb.njit(**ON_ITS_OWN)
-def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, tallies):
+def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, tallies, out):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
     docstring; :func:`ordinates_sweep`); a skipped cell (``cell`` < 0) holds none. A packet
-    left pending marks its row in ``pending``. ``tallies`` = (reflected, transmitted, side
-    escaped, absorbed, packets sent) so far; returns them updated."""
+    left pending marks its row in ``pending``. What all its packets send to one neighbour (in
+    that neighbour's ordinate n) is summed in ``out`` (float64, 12 or more, scratch: power, then
+    power times anisotropy) and delivered once, a merge that changes the fields only by
+    rounding. ``tallies`` = (reflected, transmitted, side escaped, absorbed, packets sent) so
+    far; returns them updated."""
     c = cell[k, i, j]
     if c < 0:
         return tallies
@@ -142,26 +146,29 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending
     for o in range(6):
         # light that scattered in this cell's half of its way in along e_o (slot 6 + o): split
         # by the cone partition about e_o into this cell's ordinates
-        x = W[6 + o, c]
+        x = W[c, 6 + o]
         if x <= 0.0:
             continue
-        xa = Wa[6 + o, c]
-        W[6 + o, c] = 0.0
-        Wa[6 + o, c] = 0.0
+        xa = Wa[c, 6 + o]
+        W[c, 6 + o] = 0.0
+        Wa[c, 6 + o] = 0.0
         cone = _cone(table, xa / x)
         for n in range(6):
             share, m = _part(o, n, cone)
-            W[n, c] += x * share
-            Wa[n, c] += x * share * m
+            W[c, n] += x * share
+            Wa[c, n] += x * share * m
+    # what leaves this cell for its neighbour along e_n, into ordinate n, summed over the packets
+    # sent: power in out[n], power times anisotropy in out[6 + n] (one delivery per neighbour)
+    out[:] = 0.0
     for o in range(6):
-        w = W[o, c]
+        w = W[c, o]
         if w <= w_min:
-            if w > 0.0:
+            if w > 0.0 and pending[k, i] == 0:
                 pending[k, i] = 1
             continue
-        wa = Wa[o, c]
-        W[o, c] = 0.0
-        Wa[o, c] = 0.0
+        wa = Wa[c, o]
+        W[c, o] = 0.0
+        Wa[c, o] = 0.0
         sent_packets += 1
         sign = 1.0 - 2.0 * (o % 2)
         phi[k, i, j] += w * inv_area
@@ -174,27 +181,26 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending
         inside = k2 >= 0 and k2 < n0 and i2 >= 0 and i2 < n1 and j2 >= 0 and j2 < n2
         S = sh * Sh[k2, i2, j2] if inside else sh
         D = dh * Dh[k2, i2, j2] if inside else dh
-        e = sent * S
-        if e > 0.0:
-            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, cell, runs, pending, o, k2, i2, j2, e, a, refl,
-                                                       trans, side_out, absorbed)
+        out[o] += sent * S
+        out[6 + o] += sent * S * a
         if S >= 1.0:                     # nothing scatters on the way
             continue
         # the part that scatters: its lobe's mean cosine a_s = a (D - S) / (1 - S), so that the
         # whole decays by D (Eq. 12) while the unscattered part keeps a
         a_s = a * (D - S) / (1.0 - S)
-        # it scatters in the sender's half (1 - Sh[s]) and is split from here ...
+        # it scatters in the sender's half (1 - Sh[s]) and is split from here by the cone
+        # partition about e_o: front on along e_o, back into o ^ 1, each side part along its e_n ...
         es = sent * (1.0 - sh)
         if es > 0.0:
-            cone = _cone(table, a_s)
+            pf, ps, pb, mf, mb, mj = _cone(table, a_s)
+            out[o] += es * pf
+            out[6 + o] += es * pf * mf
+            out[o ^ 1] += es * pb
+            out[6 + (o ^ 1)] -= es * pb * mb
             for n in range(6):
-                share, m = _part(o, n, cone)
-                e = es * share
-                if e <= 0.0:
-                    continue
-                k3, i3, j3 = face_neighbour(k, i, j, n)
-                refl, trans, side_out, absorbed = _deliver(W, Wa, Th, cell, runs, pending, n, k3, i3, j3, e, m,
-                                                           refl, trans, side_out, absorbed)
+                if n // 2 != o // 2:
+                    out[n] += es * ps
+                    out[6 + n] += es * ps * mj
         # ... or in the receiver's (Sh[s] (1 - Sh[c])): it crosses into the receiver and waits
         # there in slot 6 + o, which only this cell writes (a receiver with medium, or next to
         # this cell's, is never skipped)
@@ -204,9 +210,16 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending
             absorbed += es * (1.0 - thc)
             es *= thc
             c2 = cell[k2, i2, j2]
-            W[6 + o, c2] += es
-            Wa[6 + o, c2] += es * a_s
-            pending[k2, i2] = 1
+            W[c2, 6 + o] += es
+            Wa[c2, 6 + o] += es * a_s
+            if pending[k2, i2] == 0:
+                pending[k2, i2] = 1
+    for n in range(6):
+        e = out[n]
+        if e > 0.0:
+            k3, i3, j3 = face_neighbour(k, i, j, n)
+            refl, trans, side_out, absorbed = _deliver(W, Wa, Th, cell, runs, pending, n, k3, i3, j3, e,
+                                                       out[6 + n] / e, refl, trans, side_out, absorbed)
     return refl, trans, side_out, absorbed, sent_packets
 
 
@@ -242,6 +255,8 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
     n0, n1, n2 = Th.shape
     groups = edges.shape[0] - 1
     part = np.zeros((5, n0 * n1))
+    # each group's parts leaving a cell (_send), 12 of 24 slots: no two groups share a cache line
+    out = np.zeros((groups, 24))
     for step in range(n0 + groups - 1):
         for g in nb.prange(groups):
             s = step - g
@@ -255,7 +270,8 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
                     t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
-                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, t)
+                        t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, t,
+                                  out[g])
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
