@@ -43,7 +43,7 @@ def luminance_sums(img, masks) -> dict:
 def variance_sums(ref, masks) -> dict:
     if ref.variance is None:
         return {name: float("nan") for name in masks}
-    v = np.asarray(ref.variance, np.float64) @ (metrics.LUMINANCE ** 2)     # the variance of the luminance
+    v = np.asarray(ref.variance, np.float64) @ np.square(metrics.LUMINANCE)     # the variance of the luminance
     return {name: float(v[m].sum()) for name, m in masks.items()}
 
 

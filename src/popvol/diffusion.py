@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .domains import check_memory
+from .domains import check_memory, frame_to_world
 from .kernels import diffusion as K
 from .kernels.sampling import block_sums
 
@@ -331,9 +331,13 @@ def resample_grid(src, src_frame, src_origin, src_h, frame, origin, h, shape) ->
     axes, corner ``src_origin``, cells ``src_h``) sampled trilinearly at the cell centres of
     another (centres at integer index; clamped to the edge value within the outer half cell, 0
     outside, as kernels/sampling.trilinear)."""
-    q = np.indices(shape, np.float64).reshape(3, -1).T
-    world = origin + (q + 0.5) * h @ frame
-    x = (world - src_origin) @ np.asarray(src_frame).T / src_h - 0.5
+    # continuous index in src of each centre: (q + 0.5) h frame, less src_origin, along src_frame
+    # over src_h (no BLAS call on the cells: domains.frame_to_world)
+    src_frame = np.asarray(src_frame, np.float64)
+    M = np.asarray(frame, np.float64) @ src_frame.T * (h / src_h)
+    b = (np.asarray(origin, np.float64) - src_origin) @ src_frame.T / src_h - 0.5
+    q = np.indices(shape, np.float64).reshape(3, -1)
+    x = (frame_to_world(M, q + 0.5) + b[:, None]).T
     n = np.array(src.shape)
     inside = np.all((x >= -0.5) & (x <= n - 0.5), axis=1)
     x = np.clip(x, 0.0, n - 1.0)

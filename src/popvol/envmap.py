@@ -26,14 +26,12 @@ import numpy as np
 
 from .check import MAX_POWER
 from .errors import PopvolError
+from .io.images import luminance
 from .lights import DirectionalLight
 
 #: Largest radiance (texel times scale, or a sky's colour) accepted: the lights a map becomes
 #: carry up to 4 pi times it as irradiance, which must stay within check.MAX_POWER.
 MAX_RADIANCE = MAX_POWER / 16
-
-# Rec. 709 luminance weights of linear RGB (metrics.luminance uses them too)
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 @dataclass
@@ -155,7 +153,7 @@ def sun_texels(env: EnvMap) -> np.ndarray:
     SUN_CONTRAST times the map's mean luminance (none otherwise)."""
     rad = env.radiance.astype(np.float64)
     _, omega = texel_geometry(*rad.shape[:2])
-    lum = rad @ LUMINANCE
+    lum = luminance(rad)
     mean = (lum * omega).sum() / (4 * np.pi)
     if mean > 0 and lum.max() > SUN_CONTRAST * mean:
         return lum > 0.5 * lum.max()
@@ -166,7 +164,7 @@ def _region_light(rad, d, omega, mask, source) -> DirectionalLight:
     """The directional light of the texels in ``mask`` (module docstring)."""
     w = omega * mask
     E = (rad * w[..., None]).sum(axis=(0, 1))
-    lum = (rad @ LUMINANCE) * w
+    lum = luminance(rad) * w
     m = (lum[..., None] * d).sum(axis=(0, 1))
     if lum.sum() <= 0 or np.linalg.norm(m) == 0:    # no luminance (pure blue) or symmetric
         m = (w[..., None] * d).sum(axis=(0, 1))
@@ -179,7 +177,7 @@ def _region_light(rad, d, omega, mask, source) -> DirectionalLight:
 
 def _median_cut_lights(rad, d, omega, k, source) -> list[DirectionalLight]:
     H, W = rad.shape[:2]
-    energy = (rad @ LUMINANCE) * omega                     # (H, W) luminous "power"
+    energy = luminance(rad) * omega                     # (H, W) luminous "power"
     regions = [(0, H, 0, W)]
     while len(regions) < k:
         splittable = [r for r in regions if (r[1] - r[0]) * (r[3] - r[2]) > 1]

@@ -6,7 +6,7 @@ float64). A *mask* is bool (H, W): the pixels that see the medium. The relative 
 taken on those pixels only, so that a black background adds no zeros to them and a sky seen
 around the medium does not count.
 
-Definitions (M = the masked pixels, N = |M|, Y = luminance = RGB @ ``envmap.LUMINANCE``):
+Definitions (M = the masked pixels, N = |M|, Y = luminance = RGB . ``io.images.LUMINANCE``):
 
 - ``eps = EPS_FRACTION * (mean over M of Y_ref)^2``, ``EPS_FRACTION = 0.01``: a floor of the
   denominator one tenth of the medium's mean luminance, squared. It scales with the
@@ -51,7 +51,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .envmap import LUMINANCE
+from .io.images import LUMINANCE, luminance
 from .errors import PopvolError
 from .io.files import write_atomically
 
@@ -72,12 +72,6 @@ def _pair(img, ref):
         raise PopvolError(f"image {img.shape[1::-1]} and reference {ref.shape[1::-1]} differ in size; "
                           "render with the reference's width and height")
     return img, ref
-
-
-def luminance(rgb) -> np.ndarray:
-    """Relative luminance of linear RGB (Rec. 709 weights, ``envmap.LUMINANCE``), float64 (...)."""
-    rgb = np.asarray(rgb, np.float64)
-    return rgb @ LUMINANCE
 
 
 # -- the mask ------------------------------------------------------------------------------

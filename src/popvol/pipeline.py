@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from .diffusion import solve_diffusion, warm_guess
-from .domains import BYTES_PER_DOMAIN_CELL, available_memory, check_memory, grow, small_pages
+from .domains import BYTES_PER_DOMAIN_CELL, available_memory, check_memory, frame_to_world, grow, small_pages
 from .errors import PopvolError
 from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
@@ -145,7 +145,7 @@ def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
     rest = np.maximum(walk.phi - direct, 0.0)
     F = walk.flux.copy()
     F[0] -= direct
-    Fw = np.tensordot(dom.frame.T.astype(np.float32), F, axes=1)
+    Fw = frame_to_world(dom.frame, F)
     domain_to_world((direct, rest, Fw[0], Fw[1], Fw[2]), dom.frame, dom.origin, dom.h, medium.origin,
                     medium.voxel_size, (outs[2], phid, flux[0], flux[1], flux[2]), needed)
     outs[0][...] = outs[2]
@@ -309,8 +309,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
         d, grid = ds.result.diffusion, ds.diffusion_grid
         diffuse = ()                    # (field, out) pairs of the diffusion stage
         if d is not None:
-            # world component c of J = sum over the grid axes a of frame[a, c] J_a
-            J = np.tensordot(grid.frame.T.astype(np.float32), d.flux, axes=1)
+            J = frame_to_world(grid.frame, d.flux)
             diffuse = tuple(zip((d.phi, J[0], J[1], J[2]), (phid[i, ch], flux[i, ch, 0], flux[i, ch, 1],
                                                              flux[i, ch, 2])))
         if grid is ds.domain and d.h == ds.domain.h and d.phi.shape == tuple(ds.domain.shape):

@@ -62,7 +62,10 @@ def linear_to_srgb(x):
 
 
 def luminance(rgb) -> np.ndarray:
-    """float64 (H, W) Rec.709 luminance of a linear (H, W, 3) image."""
+    """float64 (...) Rec.709 luminance of linear RGB (..., 3): an image, an environment map.
+    By elementwise products, not ``rgb @ LUMINANCE``: a BLAS call on a large array leaves
+    OpenBLAS's threads spinning, and they take the second core from the Numba kernels that
+    follow (domains.frame_to_world)."""
     rgb = np.asarray(rgb)
     return sum(w * rgb[..., i].astype(np.float64) for i, w in enumerate(LUMINANCE))
 
