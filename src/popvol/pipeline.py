@@ -140,8 +140,14 @@ def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
     a delta along the light) and the rest, phi - phi_dir (at least 0) with first moment
     F - phi_dir d, as one lobe about its own moment in ``phid`` and ``flux`` (float32 (3, nx,
     ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1 (the
-    walk has no diffusion stage)."""
-    direct = walk.direct if walk.direct is not None else np.zeros_like(walk.phi)
+    walk has no diffusion stage). An environment's light has no unscattered part (``walk.direct``
+    None): its ``outs`` are left as they are (zeros) and only the rest is mapped."""
+    if walk.direct is None:
+        Fw = frame_to_world(dom.frame, walk.flux)
+        domain_to_world((np.maximum(walk.phi, 0.0), Fw[0], Fw[1], Fw[2]), dom.frame, dom.origin, dom.h,
+                        medium.origin, medium.voxel_size, (phid, flux[0], flux[1], flux[2]), needed)
+        return
+    direct = walk.direct
     rest = np.maximum(walk.phi - direct, 0.0)
     F = walk.flux.copy()
     F[0] -= direct
