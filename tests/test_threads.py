@@ -16,6 +16,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "src" / "popvol" / "bench_scenes" / "field_sun.toml"
+BLAS_LIMITS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "GOTO_NUM_THREADS")
 
 PROBE = r"""
 import os, sys
@@ -43,8 +44,11 @@ print(len(blas), ticks() - t0, os.sysconf('SC_CLK_TCK'))
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux's /proc")
 def test_blas_threads_stay_idle_during_solve_and_render():
+    # without the thread limits that importing dask.distributed (test_distributed) leaves in
+    # this process's environment (OMP_NUM_THREADS = OPENBLAS_NUM_THREADS = 1): BLAS's own default
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_LIMITS}
     out = subprocess.run([sys.executable, "-c", PROBE, str(SCENE)], capture_output=True, text=True, timeout=600,
-                         env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+                         env={**env, "PYTHONPATH": str(ROOT / "src")})
     assert out.returncode == 0, out.stderr[-2000:]
     threads, ticks, per_second = map(int, out.stdout.split()[-3:])
     if threads == 0:
