@@ -142,20 +142,22 @@ def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
     ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1 (the
     walk has no diffusion stage). An environment's light has no unscattered part (``walk.direct``
     None): its ``outs`` are left as they are (zeros) and only the rest is mapped."""
-    if walk.direct is None:
-        Fw = frame_to_world(dom.frame, walk.flux)
-        domain_to_world((np.maximum(walk.phi, 0.0), Fw[0], Fw[1], Fw[2]), dom.frame, dom.origin, dom.h,
-                        medium.origin, medium.voxel_size, (phid, flux[0], flux[1], flux[2]), needed)
-        return
     direct = walk.direct
-    rest = np.maximum(walk.phi - direct, 0.0)
-    F = walk.flux.copy()
-    F[0] -= direct
+    F = walk.flux
+    if direct is None:
+        rest = np.maximum(walk.phi, 0.0)
+    else:
+        rest = np.maximum(walk.phi - direct, 0.0)
+        F = F.copy()
+        F[0] -= direct
     Fw = frame_to_world(dom.frame, F)
-    domain_to_world((direct, rest, Fw[0], Fw[1], Fw[2]), dom.frame, dom.origin, dom.h, medium.origin,
-                    medium.voxel_size, (outs[2], phid, flux[0], flux[1], flux[2]), needed)
-    outs[0][...] = outs[2]
-    outs[1][...] = outs[2]
+    fields, targets = (rest, Fw[0], Fw[1], Fw[2]), (phid, flux[0], flux[1], flux[2])
+    if direct is not None:
+        fields, targets = (direct,) + fields, (outs[2],) + targets
+    domain_to_world(fields, dom.frame, dom.origin, dom.h, medium.origin, medium.voxel_size, targets, needed)
+    if direct is not None:
+        outs[0][...] = outs[2]
+        outs[1][...] = outs[2]
 
 
 def warm_domains(warm, scene) -> tuple[dict, str]:
