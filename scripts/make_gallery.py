@@ -86,7 +86,7 @@ def main():
                 ref = load_reference(ref_path)
                 scene = popvol.load_scene(ROOT / "examples" / f"{name}.toml", width=size[0], height=size[1])
                 mask = metrics.medium_mask(ref.image, scene)
-                row["compare"] = metrics.compare(img, ref.image, mask, ref.variance, ref.halves)
+                row["compare"] = metrics.compare(img, ref.image, mask, ref.variance, ref.halves, ref.half_passes)
                 row["spp"] = ref.spp
                 e = auto_exposure(ref.image)
                 panel = np.concatenate([tonemap(img, e), np.full((size[1], 4, 3), 255, np.uint8),

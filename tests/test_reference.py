@@ -174,7 +174,7 @@ def test_reference_keeps_two_independent_halves_and_old_references_gain_one(blob
     out = tmp_path / "ref.exr"
     r = render_reference(sc, out, spp=64, passes=4)
     a, b = r.halves
-    assert r.meta["passes_b"] == 2
+    assert r.meta["passes_b"] == 2 and r.half_passes == (2, 2)
     np.testing.assert_allclose(0.5 * (a + b), r.image, rtol=1e-5, atol=1e-7)
     assert not np.array_equal(a, b)
     # the halves differ by noise: each is the mean of 2 passes, so var(a - b) = 4 var(mean of 4)
@@ -186,9 +186,9 @@ def test_reference_keeps_two_independent_halves_and_old_references_gain_one(blob
     meta = json.loads((tmp_path / "ref.exr.json").read_text())
     del meta["passes_b"]
     (tmp_path / "ref.exr.json").write_text(json.dumps(meta))
-    assert load_reference(out).halves is None
+    assert load_reference(out).halves is None and load_reference(out).half_passes is None
     r2 = render_reference(sc, out, spp=32, passes=2)
-    assert (r2.passes, r2.meta["passes_b"]) == (6, 2)
+    assert (r2.passes, r2.meta["passes_b"], r2.half_passes) == (6, 2, (4, 2))
     old, new = r2.halves
     np.testing.assert_allclose(old, r.image, rtol=1e-5, atol=1e-7)      # the 4 passes it had
     np.testing.assert_allclose((4 * old + 2 * new) / 6, r2.image, rtol=1e-5, atol=1e-7)
@@ -208,8 +208,11 @@ def test_compare_command_writes_metrics_and_figure(blob_file, tmp_path):
         main(["compare", str(scene_toml), "--reference", str(ref), "--json", str(out_json), "--figure", str(fig)])
     assert e.value.code == 0
     res = json.loads(out_json.read_text())
-    for key in ("relmse", "rmse", "brightness_ratio", "ssim", "flip", "reference_noise_relmse", "popvol_seconds"):
+    for key in ("relmse", "rmse", "brightness_ratio", "ssim", "flip", "reference_noise_relmse", "popvol_seconds",
+                "relmse_extrapolated", "reference_noise_observed"):
         assert key in res
+    # from the reference's 2 passes, one in each half
+    assert res["relmse_extrapolated"] is not None and res["reference_noise_observed"] is not None
     assert 0.2 < res["brightness_ratio"] < 5 and fig.stat().st_size > 1000
 
 

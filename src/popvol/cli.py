@@ -360,7 +360,9 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     brightness ratio popvol / reference there and in the reference's dimmest 50 %, middle 40 %
     and brightest 10 % of them (ranked on one independent half of the reference's passes and
     measured on the other, where it has them, so that its noise does not pick the pixels); the
-    reference's own noise in the same relMSE; and the equal-error
+    reference's own noise in the same relMSE; where the reference has two independent halves,
+    the relMSE against a noiseless reference, extrapolated from the relMSE against the
+    reference and against each half (a mean of P passes adds about c / P); and the equal-error
     speed-up: the samples per pixel, and seconds at the reference's recorded rate, that the
     reference would need for its noise to equal popvol's error, over popvol's time."""
     from . import metrics
@@ -388,9 +390,15 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
            "popvol_seconds": seconds, "solve_seconds": solution.seconds,
            "reference_seconds": float(ref.meta.get("seconds", 0.0)) or None,
            "mask": f"camera ray optical depth > {metrics.MASK_OPTICAL_DEPTH:g}",
-           **metrics.compare(img, ref.image, mask, ref.variance, ref.halves)}
-    res["equal_error"] = metrics.equal_error(res["relmse"], res["reference_noise_relmse"], ref.spp,
-                                             res["reference_seconds"], seconds)
+           **metrics.compare(img, ref.image, mask, ref.variance, ref.halves, ref.half_passes)}
+    # popvol's error against the truth and the reference's noise: extrapolated from the reference's
+    # halves where it has them, else the relMSE less the variance's estimate of the noise
+    if res["relmse_extrapolated"] is not None:
+        error, noise = res["relmse_extrapolated"], res["reference_noise_observed"]
+    else:
+        noise = res["reference_noise_relmse"]
+        error = None if noise is None else res["relmse"] - noise
+    res["equal_error"] = metrics.equal_error(error, noise, ref.spp, res["reference_seconds"], seconds)
     if json_out:
         write_text_atomically(json_out, json.dumps(_json_safe(res), indent=2, allow_nan=False))
     if figure:
@@ -410,6 +418,10 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
                f"{'' if ref.halves is not None else '; bands ranked on the reference itself: it has no independent halves'})  "
                f"reference noise {_fmt(res['reference_noise_relmse'], '.2g')}  "
                f"SSIM {_fmt(res['ssim'], '.3f')}  FLIP {_fmt(flip, '.3f')}  popvol {seconds:.2f} s")
+    if res["relmse_extrapolated"] is not None:
+        click.echo(f"relMSE against a noiseless reference {_fmt(res['relmse_extrapolated'], '.4g')} (extrapolated "
+                   f"from the reference's {ref.passes} passes and its two halves; its noise adds "
+                   f"{_fmt(res['reference_noise_observed'], '.2g')} to the relMSE above)")
     eq = res["equal_error"]
     if eq["seconds"] is not None:
         click.echo(f"equal error: the reference would need {eq['spp']:.3g} spp, {eq['seconds']:.3g} s at its "

@@ -34,6 +34,15 @@ Definitions (M = the masked pixels, N = |M|, Y = luminance = RGB . ``io.images.L
   var[p, c] / (ref[p, c]^2 + eps)`` with ``var`` the variance of the reference's mean per pixel
   (``Reference.variance``) and the same eps and mask: the relMSE expected of the reference
   itself against the truth.
+- relMSE against a noiseless reference, extrapolated (:func:`extrapolated_relmse`): against a
+  reference that averages P independent passes, the expected relMSE is about ``e + c / P``,
+  ``e`` popvol's relMSE against the truth and ``c / P`` what the reference's noise adds (its
+  variance falls as 1 / P). Measured against the reference (P passes) and against each of its
+  two independent halves (``Reference.halves``, P_a and P_b passes), the three figures give
+  ``e`` and ``c`` by least squares. This sees the noise as the metric does: on the suite's
+  references the share it finds, ``c / P``, is 0.4-2.3 times the variance estimate above, which
+  is low where rare bright samples (fireflies) carry the variance and the few passes miss them,
+  and which leaves out what the noise does through the denominator (docs/ACCURACY.md).
 
 The mask: with the scene at hand, :func:`optical_depth_mask`, the pixels whose camera ray
 (through the pixel's centre) crosses the medium with optical depth above
@@ -215,22 +224,51 @@ def noise_relmse(variance, ref, mask=None) -> float:
     return _relative(var, ref, mask)
 
 
-def equal_error(relmse_value, noise, ref_spp, ref_seconds, popvol_seconds) -> dict:
+def extrapolated_relmse(img, ref, halves, half_passes, mask=None) -> dict:
+    """popvol's relMSE against a noiseless reference, extrapolated from the reference's passes.
+
+    ``ref`` float (H, W, 3), the mean of P = P_a + P_b independent passes; ``halves`` its two
+    independent parts (float (H, W, 3) each: the mean of P_a passes and of the other P_b,
+    ``Reference.halves``); ``half_passes`` (P_a, P_b) (``Reference.half_passes``). The relMSE
+    against a mean of P passes is expected to be ``e + c / P`` (module docstring); fitted by least
+    squares to the relMSE against ``ref`` and against each half (the same mask and, per image, its
+    own eps). Returns {"relmse": e, "noise": c / P}: popvol's relMSE against the truth and what the
+    reference's noise adds to its relMSE against ``ref``. ``e`` may come out a little below 0 where
+    popvol is within the reference's noise. Both None without halves or their pass counts; NaN
+    where relMSE is undefined (an empty mask, a black reference)."""
+    out = {"relmse": None, "noise": None}
+    if halves is None or half_passes is None:
+        return out
+    pa, pb = (int(n) for n in half_passes)
+    if pa < 1 or pb < 1:
+        return out
+    img, ref = _pair(img, ref)
+    mask = _mask(mask, ref)
+    counts = np.array([pa + pb, pa, pb], np.float64)
+    figures = np.array([relmse(img, r, mask) for r in (ref, *(_pair(h, ref)[0] for h in halves))])
+    if not np.all(np.isfinite(figures)):
+        return {"relmse": float("nan"), "noise": float("nan")}
+    design = np.stack([np.ones(3), 1.0 / counts], axis=1)
+    (e, c), *_ = np.linalg.lstsq(design, figures, rcond=None)
+    return {"relmse": float(e), "noise": float(c / counts[0])}
+
+
+def equal_error(error, noise, ref_spp, ref_seconds, popvol_seconds) -> dict:
     """How long the reference renderer would need to be as close to the truth as popvol is.
 
-    The reference's relMSE against the truth is its noise, variance / (ref^2 + eps) averaged
-    (:func:`noise_relmse`), and the variance of a mean of independent samples falls as
-    1 / spp, so it equals popvol's error e at ``spp = ref_spp * noise / e`` samples per pixel,
-    which cost ``ref_seconds / ref_spp`` each. popvol's error is its measured relMSE less the
-    reference's noise (the expected relMSE against a noisy reference is error + noise).
+    ``error``: popvol's relMSE against the truth; ``noise``: what the reference's noise adds to
+    the relMSE against it, the reference's own relMSE against the truth (both from
+    :func:`extrapolated_relmse`, or the measured relMSE less :func:`noise_relmse` and that noise).
+    The noise of a mean of independent samples falls as 1 / spp, so it equals ``error`` at
+    ``spp = ref_spp * noise / error`` samples per pixel, which cost ``ref_seconds / ref_spp``
+    each.
 
     Returns {"spp", "seconds", "speedup"} (speedup = those seconds / ``popvol_seconds``), each
-    None when it cannot be told: no noise estimate (fewer than 2 passes), no timing, or a
-    relMSE within twice the noise (the reference is too noisy to show popvol's error)."""
+    None when it cannot be told: no noise estimate (fewer than 2 passes), no timing, or an error
+    no larger than the noise (the reference is too noisy to show popvol's error)."""
     out = {"spp": None, "seconds": None, "speedup": None}
-    if noise is None or not (noise > 0) or relmse_value is None or not math.isfinite(relmse_value):
+    if noise is None or not (noise > 0) or error is None or not math.isfinite(error):
         return out
-    error = relmse_value - noise
     if not error > noise:
         return out
     out["spp"] = ref_spp * noise / error
@@ -338,19 +376,24 @@ def flip(img, ref) -> float | None:
     return float(mean_error)
 
 
-def compare(img, ref, mask=None, variance=None, halves=None) -> dict:
+def compare(img, ref, mask=None, variance=None, halves=None, half_passes=None) -> dict:
     """Every metric at once (the metric keys of ``popvol compare --json``).
 
     ``mask`` bool (H, W), default :func:`luminance_mask` of ``ref``; ``variance`` float (H, W, 3),
     the reference's variance of the mean, for ``reference_noise_relmse`` (None without it);
-    ``halves``, two independent images of the reference for the bands (:func:`band_ratios`).
-    Keys: relmse, relmse_eps, brightness_ratio, brightness_bands {dim, mid, bright},
-    bands_ranked_on ("independent halves" or "the reference"), reference_noise_relmse,
-    mask_pixels, pixels, rmse (whole frame, absolute), ssim, flip.
+    ``halves``, two independent images of the reference for the bands (:func:`band_ratios`) and,
+    with ``half_passes`` (their pass counts), for :func:`extrapolated_relmse`.
+    Keys: relmse, relmse_eps, relmse_extrapolated (against a noiseless reference),
+    reference_noise_observed (what the reference's noise adds to relmse, from the same fit),
+    brightness_ratio, brightness_bands {dim, mid, bright}, bands_ranked_on ("independent halves"
+    or "the reference"), reference_noise_relmse (from the variance), mask_pixels, pixels, rmse
+    (whole frame, absolute), ssim, flip.
     """
     img, ref = _pair(img, ref)
     mask = _mask(mask, ref)
+    extrapolated = extrapolated_relmse(img, ref, halves, half_passes, mask)
     return {"relmse": relmse(img, ref, mask), "relmse_eps": relmse_eps(ref, mask),
+            "relmse_extrapolated": extrapolated["relmse"], "reference_noise_observed": extrapolated["noise"],
             "brightness_ratio": brightness_ratio(img, ref, mask),
             "brightness_bands": band_ratios(img, ref, mask, halves),
             "bands_ranked_on": "the reference" if halves is None else "independent halves",

@@ -170,6 +170,14 @@ class Reference:
     #: images of the scene (module docstring); None where a reference has no pass in one of them
     halves: tuple[np.ndarray, np.ndarray] | None = None
 
+    @property
+    def half_passes(self) -> tuple[int, int] | None:
+        """The passes in each of :attr:`halves` (outside subset B, in it), None without halves."""
+        if self.halves is None:
+            return None
+        nb = int(self.meta.get("passes_b", 0))
+        return self.passes - nb, nb
+
     def noise_relmse(self, mask: np.ndarray | None = None) -> float | None:
         """Expected relMSE of this reference against the truth, from its pass-to-pass variance,
         in the scale-free metric of :func:`popvol.metrics.relmse` (same mask, same eps): None
