@@ -6,22 +6,28 @@ popvol[reference]):
 Mitsuba 3's volpath cut at max_depth 2, 3, 5 and 9 renders the light of paths with at most 1, 2,
 4 and 8 scattering events; their differences and the full reference split the image into order
 bands 1, 2, 3-4, 5-8 and 9+. popvol's own split: its single scattering (the unscattered light
-scattered once, :meth:`popvol.Solution.single_scattering`) and the rest (the walk's scattered
-light and the diffusion stage's). Missing cut references are rendered into ``--out`` (named
-after the scene and the depth; 16384 spp in 8 passes by default); the default scene is the
-regression fixture with its 65536-spp reference.
+scattered once, :meth:`popvol.Solution.single_scattering`), its second order (the gathered last
+bounce of that light alone: the solution reduced to its unscattered light but still gathered,
+docs/METHOD.md "Gathered last bounce"; a scene lit by suns and point lights only) and the rest
+(the gather of the walk's scattered light and the diffusion stage's, orders >= 3). Missing cut
+references are rendered into ``--out`` (named after the scene and the depth; 16384 spp in 8
+passes by default); the default scene is the regression fixture with its 65536-spp reference.
+``--gather`` and ``--gather-resolution`` set the method's (to see the gather's quadrature
+converge: its second order is the transport of the single scattering, exact as its directions
+and blocks are refined).
 
 Printed on the pixels that see the medium (popvol compare's mask), in all of them and in the full
 reference's dimmest 50 %, middle 40 % and brightest 10 %: each order band's share of the full
-reference's luminance, then popvol's single scattering over Mitsuba's order 1 and popvol's rest
-over Mitsuba's orders >= 2 (brightness ratios), with the noise (one standard deviation) of each
-ratio from the references' passes, and the same for the one-lobe walk alone (``solver = "sweep"``,
-``isotropic = "walk"``; its
-single scattering is the default's).
+reference's luminance, then the brightness ratios popvol / Mitsuba of order 1, order 2, orders
+>= 3 and orders >= 2, with the noise (one standard deviation) of each ratio from the references'
+passes, and orders >= 2 for the one-lobe walk alone (``solver = "sweep"``, ``isotropic =
+"walk"``; its single scattering is the default's). Without the gather (``--gather 0``) popvol's
+orders 2 and >= 3 are not apart, and those columns are left out.
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -53,12 +59,16 @@ def main() -> None:
     ap.add_argument("--reference", default=None, help="the full reference (default: the fixture's)")
     ap.add_argument("--spp", type=int, default=16384)
     ap.add_argument("--out", default=str(ROOT / "build" / "orders"))
+    ap.add_argument("--gather", type=int, default=None, help="method.gather (default: the scene's)")
+    ap.add_argument("--gather-resolution", type=int, default=None, help="method.gather_resolution")
     args = ap.parse_args()
     scene_path = Path(args.scene)
     full_path = Path(args.reference) if args.reference else scene_path.with_suffix(".exr")
     full = load_reference(full_path)
     h, w = full.image.shape[:2]
-    scene = popvol.load_scene(scene_path, width=w, height=h)
+    method = {k: v for k, v in (("gather", args.gather), ("gather_resolution", args.gather_resolution))
+              if v is not None}
+    scene = popvol.load_scene(scene_path, width=w, height=h, **method)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cuts = {}
@@ -73,29 +83,39 @@ def main() -> None:
     masks = {"all": mask, **metrics.bands(full.image, mask)}
     solution = popvol.solve(scene)
     single = popvol.render(scene, solution.single_scattering())
+    # the unscattered light alone, gathered: orders 1 and 2 (the gather scatters it once more)
+    gathered = scene.method.gather > 0
+    two = popvol.render(scene, dataclasses.replace(solution.single_scattering(), single=False)) if gathered else None
     whole = popvol.render(scene, solution)
-    walk_scene = popvol.load_scene(scene_path, width=w, height=h, solver="sweep", isotropic="walk")
+    walk_scene = popvol.load_scene(scene_path, width=w, height=h, solver="sweep", isotropic="walk", **method)
     walk_whole = popvol.render(walk_scene, popvol.solve(walk_scene))
 
     levels = [luminance_sums(cuts[d].image, masks) for d in DEPTHS] + [luminance_sums(full.image, masks)]
     var = [variance_sums(cuts[d], masks) for d in DEPTHS] + [variance_sums(full, masks)]
     print(f"{scene_path.name}: {w}x{h}, {int(mask.sum())} pixels see the medium; references "
           + ", ".join(f"max_depth {d} {cuts[d].spp} spp" for d in DEPTHS) + f", full {full.spp} spp")
+    columns = ["order 1", "order 2", "orders >= 3"] if gathered else ["order 1"]
     print(f"{'band':8s} " + " ".join(f"{'order ' + o:>10s}" for o in ORDER_BANDS)
-          + f" {'popvol single / order 1':>26s} {'popvol rest / orders >= 2':>27s} {'walk alone':>10s}")
+          + "".join(f" {'popvol / ' + c:>27s}" for c in columns + ["orders >= 2"]) + f" {'walk alone':>10s}")
     p_single, p_whole = luminance_sums(single, masks), luminance_sums(whole, masks)
+    p_two = luminance_sums(two, masks) if gathered else None
     p_walk = luminance_sums(walk_whole, masks)
     for name in masks:
         total = levels[-1][name]
         shares = [levels[0][name]] + [levels[i][name] - levels[i - 1][name] for i in range(1, len(levels))]
-        o1, multi = levels[0][name], total - levels[0][name]
-        r1 = p_single[name] / o1
-        rm = (p_whole[name] - p_single[name]) / multi
-        s1 = r1 * np.sqrt(var[0][name]) / o1
-        sm = rm * np.sqrt(var[0][name] + var[-1][name]) / multi
+        o1, o2, multi = levels[0][name], levels[1][name] - levels[0][name], total - levels[0][name]
+        # (popvol's part, Mitsuba's, the variance of Mitsuba's) per column
+        parts = [(p_single[name], o1, var[0][name])]
+        if gathered:
+            parts += [(p_two[name] - p_single[name], o2, var[0][name] + var[1][name]),
+                      (p_whole[name] - p_two[name], total - levels[1][name], var[1][name] + var[-1][name])]
+        parts.append((p_whole[name] - p_single[name], multi, var[0][name] + var[-1][name]))
+        cells = []
+        for p, m, v in parts:
+            r = p / m
+            cells.append(f"{r:20.3f} +- {r * np.sqrt(v) / m:.3f}")
         rw = (p_walk[name] - p_single[name]) / multi
-        print(f"{name:8s} " + " ".join(f"{s / total:10.3f}" for s in shares)
-              + f" {r1:17.3f} +- {s1:.3f} {rm:18.3f} +- {sm:.3f} {rw:10.3f}")
+        print(f"{name:8s} " + " ".join(f"{s / total:10.3f}" for s in shares) + " " + " ".join(cells) + f" {rw:10.3f}")
 
 
 if __name__ == "__main__":
