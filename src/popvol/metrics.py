@@ -39,10 +39,13 @@ Definitions (M = the masked pixels, N = |M|, Y = luminance = RGB . ``io.images.L
   ``e`` popvol's relMSE against the truth and ``c / P`` what the reference's noise adds (its
   variance falls as 1 / P). Measured against the reference (P passes) and against each of its
   two independent halves (``Reference.halves``, P_a and P_b passes), the three figures give
-  ``e`` and ``c`` by least squares. This sees the noise as the metric does: on the suite's
-  references the share it finds, ``c / P``, is 0.4-2.3 times the variance estimate above, which
-  is low where rare bright samples (fireflies) carry the variance and the few passes miss them,
-  and which leaves out what the noise does through the denominator (docs/ACCURACY.md).
+  ``e`` and ``c`` by least squares. This sees the noise as the metric does, which the variance
+  estimate above does not: that one leaves out what the noise does through the denominator
+  (ref^2 + eps), and a few passes misjudge a variance that rare bright samples (fireflies)
+  carry. On the suite's references the share the fit finds, ``c / P``, is 0.4-1.6 times the
+  variance estimate (2.3 on a 768-spp reference of the densest cloud; docs/ACCURACY.md), and on
+  three references extended after the fit it predicted their relMSE (README, "What it
+  computes").
 
 The mask: with the scene at hand, :func:`optical_depth_mask`, the pixels whose camera ray
 (through the pixel's centre) crosses the medium with optical depth above
