@@ -2,8 +2,10 @@
 Mitsuba 3 references on the accuracy suite, at 64, 128 and 256 cells, in the metric of ``popvol
 compare`` (with, for the notes, the one-lobe sweeps with their diffusion stage at every
 resolution, the default without the gathered last bounce at 64 and 128 cells, the one-lobe Jacobi
-wavefront at 128 and the binned one at 64). Run from the repository root, with ../shared beside
-the checkout (about 40 minutes on 2 cores once the references exist):
+wavefront at 128 and the binned one at 64); each row also against a noiseless reference,
+extrapolated from the reference's two halves (``metrics.extrapolated_relmse``), which the goal is
+held against. Run from the repository root, with ../shared beside the checkout (about 8 minutes
+on 2 cores once the references exist):
 
     python scripts/accuracy_table.py [--spp 4096] [--variant llvm_ad_rgb]
 
