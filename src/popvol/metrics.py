@@ -251,9 +251,11 @@ def extrapolated_relmse(img, ref, halves, half_passes, mask=None) -> dict:
     figures = np.array([relmse(img, r, mask) for r in (ref, *(_pair(h, ref)[0] for h in halves))])
     if not np.all(np.isfinite(figures)):
         return {"relmse": float("nan"), "noise": float("nan")}
-    design = np.stack([np.ones(3), 1.0 / counts], axis=1)
-    (e, c), *_ = np.linalg.lstsq(design, figures, rcond=None)
-    return {"relmse": float(e), "noise": float(c / counts[0])}
+    # the straight line through (1 / P, relMSE) by least squares: slope c, intercept e
+    x = 1.0 / counts
+    c = float(np.sum((x - x.mean()) * (figures - figures.mean())) / np.sum((x - x.mean()) ** 2))
+    e = float(figures.mean() - c * x.mean())
+    return {"relmse": e, "noise": c / counts[0]}
 
 
 def equal_error(error, noise, ref_spp, ref_seconds, popvol_seconds) -> dict:
