@@ -14,7 +14,7 @@ build/gallery/NAME_ref.exr, made beforehand by
 
 and, for the WDAS scenes (1024 spp) and the cumulus field (512), run again with ``--spp 768
 --passes 12`` and ``--spp 256 --passes 4`` (a reference is extended with the same 64 samples
-per pass); the figure shows popvol | Mitsuba at the reference's automatic exposure (both
+per pass), and the dusk cumulus's with ``--spp 1152 --passes 18`` (1536 in all); the figure shows popvol | Mitsuba at the reference's automatic exposure (both
 panels the same), with `popvol compare`'s figures in the table.
 """
 from __future__ import annotations
@@ -110,7 +110,9 @@ def write_markdown(rows):
              "the figures are those of `popvol compare` on the pixels that see the medium: relMSE with",
              "epsilon = 0.01 x (mean reference luminance)^2, the brightness ratio, and the ratio in the",
              "reference's dimmest 50 % / middle 40 % / brightest 10 % (each half of its passes ranked and",
-             "measured against the other), with the reference's own noise in the same relMSE. Times are popvol's whole render (load, solve, render, write) after a warm-up",
+             "measured against the other), with the reference's own noise in the same relMSE and popvol's",
+             "relMSE against a noiseless reference, extrapolated from the reference's two halves",
+             "(`popvol compare`). Times are popvol's whole render (load, solve, render, write) after a warm-up",
              "run that compiled the kernels; the WDAS scenes need `../shared/data/volumes`.", ""]
     for r in rows:
         lines += [f"## {r['caption']}", "", f"![{r['name']}](figures/gallery/{r['name']}.png)", "",
@@ -120,8 +122,11 @@ def write_markdown(rows):
         if c:
             b = c["brightness_bands"]
             noise = c["reference_noise_relmse"]
+            noiseless = ("" if c["relmse_extrapolated"] is None else
+                         f"; against a noiseless reference {c['relmse_extrapolated']:.3f}, extrapolated from the "
+                         "reference's halves")
             lines += [f"Against Mitsuba ({r['spp']} spp): relMSE {c['relmse']:.3f} (reference noise "
-                      f"{noise:.3f}), brightness x{c['brightness_ratio']:.2f}; dimmest 50 % "
+                      f"{noise:.3f}{noiseless}), brightness x{c['brightness_ratio']:.2f}; dimmest 50 % "
                       f"x{b['dim']:.2f}, middle 40 % x{b['mid']:.2f}, brightest 10 % x{b['bright']:.2f}.", ""]
     (ROOT / "docs" / "GALLERY.md").write_text("\n".join(lines))
     print(ROOT / "docs" / "GALLERY.md")
