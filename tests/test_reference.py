@@ -1,6 +1,8 @@
 """The Mitsuba 3 export means the same scene: an empty, an absorbing-only and an optically thin
-medium render the same in popvol and in Mitsuba (volpath), within Mitsuba's own noise. Also the
+medium render the same in popvol and in Mitsuba (volpath), within Mitsuba's own noise; popvol's
+first and second orders of scattering match Mitsuba's paths of one and two bounces. Also the
 reference passes/resume machinery, the metrics and ``popvol compare``."""
+import dataclasses
 import json
 
 import numpy as np
@@ -142,6 +144,25 @@ def test_single_scattering_matches_paths_of_one_bounce(mi, blob_file):
     ref_p, var_p = mitsuba_passes(mi, sp, 1024, max_depth=2)
     single_p = popvol.render(sp, popvol.solve(sp).single_scattering())
     assert single_p.sum() == pytest.approx(ref_p.sum(), rel=0.03, abs=4 * np.sqrt(var_p.sum()))
+
+
+def test_second_order_matches_paths_of_two_bounces(mi, blob_file):
+    """popvol's second order of scattering is the gathered last bounce of its unscattered light
+    alone (the solution reduced to that light but still gathered, as scripts/order_bands.py
+    splits it); Mitsuba's volpath gives it as max_depth = 3 less max_depth = 2. On the blob of
+    optical depth ~5 (g = 0.5; the second order a third of orders <= 2) the two agree within 5 %
+    plus four standard errors (measured x0.967 +- 0.009, the same with 64, 256 and 1024
+    directions: this phase function is broad enough for the default's quadrature; for g = 0.877
+    seen toward the sun it is not, docs/METHOD.md "By order")."""
+    sc = blob_scene(blob_file, 0.9, 8.0, 0.0)
+    once, var1 = mitsuba_passes(mi, sc, 1024, max_depth=2)
+    twice, var2 = mitsuba_passes(mi, sc, 1024, max_depth=3)
+    second, sigma = twice.sum() - once.sum(), np.sqrt(var1.sum() + var2.sum())
+    assert second > 0.25 * twice.sum()
+    solution = popvol.solve(sc)
+    single = popvol.render(sc, solution.single_scattering())
+    gathered = popvol.render(sc, dataclasses.replace(solution.single_scattering(), single=False))
+    assert gathered.sum() - single.sum() == pytest.approx(second, rel=0.05, abs=4 * sigma)
 
 
 def test_reference_passes_accumulate_and_resume(blob_file, tmp_path):
