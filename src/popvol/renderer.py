@@ -101,10 +101,10 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
               np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_))
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
-    environment, regions = None, np.zeros(len(solution.unscattered), bool)
-    if m.gather > 0 and not solution.single:
-        environment, regions = gathered_environment(scene, solution)
-    gathering = bool((solution.unscattered | regions).any()) and m.gather > 0 and not solution.single
+    gather_on = m.gather > 0 and not solution.single
+    environment, regions = (gathered_environment(scene, solution) if gather_on
+                            else (None, np.zeros(len(solution.unscattered), bool)))
+    gathering = gather_on and bool((solution.unscattered | regions).any())
     if gathering:
         # the scattered light toward the camera gathered on the grid from the lights with an
         # unscattered part and the regions of an environment map, whose first scattering is the
