@@ -340,7 +340,7 @@ def sweep_bands(R, Ra, Th, Dh, table, moment, periodic, forward, flip, w_min, in
     beside (i, j), after everything that row order puts before it (its row's cell j - 2, and
     (i, j - 1), the row before's last deposit into it), so every cell sees the same packets in
     the same order as row by row and the fields are bitwise the same; the two chains of
-    dependent cells overlap in the processor (README, "Speed": 10-25 % faster). Only the tallies
+    dependent cells overlap in the processor (docs/SPEED.md: 10-25 % faster). Only the tallies
     are summed in another order. One cell's send is :func:`_send`.
 
     halo float32 (n_bands, 2, 2, n_d, n_v): [band, 0 = toward row lo - 1 | 1 = toward row hi,
