@@ -140,6 +140,39 @@ def test_missing_scene_and_unwritable_output(tmp_path):
     assert r.returncode == 2 and "does not exist" in r.stderr
 
 
+TINY = MEDIUM.replace("16", "8")
+SMALL = "[camera]\nwidth = 16\nheight = 9\n[method]\nresolution = 8\n"
+
+
+@pytest.mark.parametrize("scene, warning", [
+    (TINY + LIGHT + SMALL.replace("[camera]\n", "[camera]\norigin = [0, 0, 5]\ntarget = [0, 0, 10]\n"),
+     "no camera ray crosses the medium"),
+    (TINY + "scale = 0\n" + LIGHT + "[background]\nradiance = 0.5\n" + SMALL, "no camera ray crosses the medium"),
+    (TINY + "scale = 1e-300\n" + LIGHT + SMALL, "no camera ray crosses the medium"),
+    (TINY + LIGHT + "irradiance = 0\n" + SMALL, "the image is black"),
+    (TINY + LIGHT + SMALL, None),
+], ids=["camera looks away", "scale 0", "scale 1e-300", "irradiance 0", "a cloud"])
+def test_render_warns_when_the_image_shows_no_medium_or_is_black(tmp_path, scene, warning):
+    """Such an image is a legitimate render: written, exit status 0, and one warning line on
+    stderr saying why it shows nothing (none for an image of the cloud)."""
+    path = write_scene(tmp_path, scene)
+    out, exr = tmp_path / "o.png", tmp_path / "o.exr"
+    r = popvol("render", str(path), "-o", str(out), "--exr", str(exr))
+    assert r.returncode == 0, r.stderr
+    from popvol.io.images import read_exr
+    img = read_exr(exr)
+    lines = r.stderr.strip().splitlines()
+    if warning is None:
+        assert lines == [] and img.max() > 0
+        return
+    assert len(lines) == 1 and lines[0].startswith("popvol: warning: ") and warning in lines[0], r.stderr
+    assert out.stat().st_size > 0 and "Traceback" not in r.stderr
+    if "black" in warning:
+        assert not img.any()
+    else:                                        # the background alone, where the scene has one
+        assert np.all(img == img[0, 0]) and ("which is black" in lines[0]) == (not img.any())
+
+
 def test_scene_from_dict_is_plain_data():
     d = {**DEMO_SCENE, "medium": {**DEMO_SCENE["medium"], "resolution": 16}, "method": {"resolution": 16}}
     s = scene_from_dict(d)

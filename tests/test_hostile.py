@@ -3,6 +3,7 @@ traceback): the values a new user tried that once gave tracebacks, NaN images or
 messages, and property-based tests (hypothesis) driving the scene loader with arbitrary values."""
 import copy
 import io
+import json
 import math
 import warnings
 import zipfile
@@ -238,6 +239,17 @@ def test_huge_values_give_short_messages():
         refused(with_(path, many))
     refused(with_(["medium", "x" * 1_000_000], 1), "unknown key")
     refused(with_(["medium", "bad\nkey"], 1), "unknown key")
+
+
+@pytest.mark.parametrize("value", ["[" * 1000 + "]" * 1000, "{a = " * 1000 + "1" + "}" * 1000],
+                         ids=["arrays", "inline tables"])
+def test_values_nested_too_deeply_for_the_toml_parser(tmp_path, capsys, no_solve, value):
+    """Python's TOML parser recurses once per level of [ or {: a thousand levels were a
+    RecursionError traceback."""
+    scene = toml_scene(tmp_path, f"[medium]\nx = {value}\n[[lights]]\ndirection = [0, -1, 0]\n")
+    with pytest.raises(PopvolError, match="nested too deeply"):
+        load_scene(scene)
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], str(scene), "nested too deeply")
 
 
 def test_ten_million_numbers_in_a_toml_file(tmp_path, capsys):
@@ -476,7 +488,9 @@ def test_compare_does_not_overwrite_the_references_sidecars(reference_files, cap
     before = Path(str(ref) + sidecar).read_bytes()
     option = "--json" if sidecar == ".json" else "-o"
     target = str(ref) + sidecar if sidecar == ".json" else str(ref)
-    cli_refuses(capsys, ["compare", scene, "--reference", ref, option, target], "overwrite")
+    msg = cli_refuses(capsys, ["compare", scene, "--reference", ref, option, target], "overwrite",
+                      "the reference's metadata" if sidecar == ".json" else "the reference,")
+    assert "scene's input file" not in msg
     assert Path(str(ref) + sidecar).read_bytes() == before
 
 
@@ -525,24 +539,136 @@ def test_compare_refuses_references_that_are_not_radiance(reference_files, capsy
     cli_refuses(capsys, ["compare", scene, "--reference", ref], "ref.exr", *words)
 
 
+def npz_bytes(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def npy_bytes(array) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array)
+    return buf.getvalue()
+
+
+#: reference_files' sums: two passes of its image (0.2 everywhere)
+SUM = 2 * np.full((9, 16, 3), 0.2, np.float32).astype(np.float64)
+SUMS = {"sum": SUM, "sumsq": SUM ** 2 / 2}
+
+
+def with_nan(a):
+    a = a.copy()
+    a[4, 5, 1] = np.nan
+    return a
+
+
 @pytest.mark.parametrize("sidecar, content, words", [
     (".json", "[1, 2, 3]", ["JSON object"]),
     (".json", '{"spp": "many", "passes": 2}', ["spp", "integer"]),
-    (".json", '{"spp": -5, "passes": 2}', ["spp", ">= 1"]),
-    (".json", '{"spp": 8, "passes": 0}', ["passes", ">= 1"]),
+    (".json", '{"spp": -5, "passes": 2}', ["spp", "[1, 2147483647]"]),
+    (".json", '{"spp": 8, "passes": 0}', ["passes", "[1, 8]"]),
     (".json", '{"spp": 8, "passes": 2, "seconds": "x"}', ["seconds", "number"]),
+    # the metadata's numbers in their ranges
+    (".json", '{"passes": 2}', ["ref.exr.json", "spp", "missing"]),
+    (".json", '{"spp": 1e300, "passes": 2}', ["ref.exr.json", "spp = 1e+300", "[1, 2147483647]"]),
+    (".json", '{"spp": 8, "passes": 1e9}', ["ref.exr.json", "passes", "[1, 8]", "at most spp"]),
+    (".json", '{"spp": 8, "passes": 2, "seconds": 1e308}', ["ref.exr.json", "seconds", "[0, 1e+09]"]),
+    (".json", '{"spp": 8, "passes": 2, "passes_b": "x"}', ["ref.exr.json", "passes_b = 'x'", "[1, 1]"]),
+    (".json", '{"spp": 8, "passes": 2, "passes_b": null}', ["ref.exr.json", "passes_b = None", "[1, 1]"]),
+    (".json", '{"spp": 8, "passes": 2, "passes_b": [1]}', ["ref.exr.json", "passes_b = [1]", "[1, 1]"]),
+    (".json", '{"spp": 8, "passes": 2, "passes_b": 99}', ["ref.exr.json", "passes_b = 99", "[1, 1]"]),
+    (".json", '{"spp": 8, "passes": 2, "passes_b": -3}', ["ref.exr.json", "passes_b = -3", "[1, 1]"]),
+    (".json", '{"spp": 8, "passes": 2, "passes_b": 1.5}', ["ref.exr.json", "passes_b = 1.5", "integer"]),
+    (".json", '{"spp": 8, "passes": 4}', ["ref.exr.npz", "passes = 4", "another reference"]),
+    (".json", '{"spp": 8, "passes": 2, "width": 32, "height": 9}', ["ref.exr.json", "32x9", "16x9"]),
+    (".json", '{"spp": 8, "passes": 2, "path_traced_digest": 5}', ["ref.exr.json", "path_traced_digest", "string"]),
+    # the sums file
     (".npz", b"not an npz at all", ["ref.exr.npz", "sums"]),
+    (".npz", npz_bytes(**SUMS)[:200], ["ref.exr.npz", "sums", "not a zip file"]),
+    (".npz", npy_bytes(SUM), ["ref.exr.npz", "single .npy array", "sum, sumsq and sum_b"]),
     (".npz", {"total": np.zeros((9, 16, 3))}, ["ref.exr.npz", "sum"]),
-    (".npz", {"sum": np.zeros((3, 3)), "sumsq": np.zeros((3, 3))}, ["ref.exr.npz", "do not match"]),
+    (".npz", {"sum": np.zeros((3, 3)), "sumsq": np.zeros((3, 3))}, ["ref.exr.npz", "sum has shape (3, 3)", "(9, 16, 3)"]),
+    (".npz", {**SUMS, "sum_b": SUM[:1]}, ["ref.exr.npz", "sum_b has shape (1, 16, 3)", "16x9", "(9, 16, 3)"]),
+    (".npz", {**SUMS, "sum_b": np.full((9, 16, 3), "x")}, ["ref.exr.npz", "sum_b", "dtype"]),
+    (".npz", {**SUMS, "sum": with_nan(SUM)}, ["ref.exr.npz", "sum has 1 values", "NaN", "x = 5, y = 4"]),
+    (".npz", {**SUMS, "sumsq": -SUMS["sumsq"]}, ["ref.exr.npz", "sumsq has 432 values", "negative"]),
+    (".npz", {**SUMS, "sum_b": with_nan(SUM / 2)}, ["ref.exr.npz", "sum_b", "NaN"]),
+    (".npz", {**SUMS, "sum_b": 2 * SUM}, ["ref.exr.npz", "sum_b exceeds sum"]),
+    (".npz", {"sum": 3 * SUM, "sumsq": 3 * SUMS["sumsq"]}, ["ref.exr.npz", "passes = 2", "ref.exr holds"]),
 ])
 def test_compare_refuses_broken_reference_sidecars(reference_files, capsys, no_solve, sidecar, content, words):
+    """Each sidecar is checked, and against the image: its numbers in range, its sums finite,
+    >= 0, of the image's shape and, divided by the passes, the image (a traceback, a "resume"
+    advice or silent n/a figures before)."""
     scene, ref = reference_files
     path = Path(str(ref) + sidecar)
     if isinstance(content, dict):
         np.savez(path, **content)
     else:
         path.write_bytes(content if isinstance(content, bytes) else content.encode())
-    cli_refuses(capsys, ["compare", scene, "--reference", ref], *words)
+    msg = cli_refuses(capsys, ["compare", scene, "--reference", ref], *words)
+    assert "resume" not in msg
+
+
+def test_compare_refuses_a_reference_of_another_scene(reference_files, tmp_path, capsys, monkeypatch):
+    """A reference records the digest of what the path tracer saw (path_traced_digest): compare
+    refuses a reference of another medium, light, camera or background, before solving; a
+    reference of the same scene, and an old one without that digest, pass on to the solve."""
+    from popvol.reference import path_traced_digest
+    scene, ref = reference_files
+    meta = {"spp": 8, "passes": 2, "seconds": 1.0, "scene": "s.toml",
+            "path_traced_digest": path_traced_digest(load_scene(scene))}
+    Path(str(ref) + ".json").write_text(json.dumps(meta))
+    brighter = toml_scene(tmp_path, TINY_TOML.replace("direction = [0, -1, 0]\n", "direction = [0, -1, 0]\n"
+                                                      "irradiance = 100\n"), name="bright.toml")
+    monkeypatch.setattr(popvol, "solve", lambda *a, **k: pytest.fail("solved"))
+    msg = cli_refuses(capsys, ["compare", brighter, "--reference", ref], "ref.exr: was rendered for another scene",
+                      "bright.toml", "popvol reference")
+    assert "override" not in msg
+    for data in (meta, {k: v for k, v in meta.items() if k != "path_traced_digest"}):
+        Path(str(ref) + ".json").write_text(json.dumps(data))
+        with pytest.raises(pytest.fail.Exception, match="solved"):      # the method may differ
+            main(["compare", str(scene if data is meta else brighter), "--reference", str(ref), "--resolution", "16"])
+
+
+def test_a_reference_larger_than_a_camera_is_named_as_the_source_of_the_size(reference_files, capsys, no_solve):
+    """An 8193x8193 reference (its header forged: refused before its pixels are read) names the
+    reference, not a camera override the user never gave."""
+    import struct
+    scene, ref = reference_files
+    data = bytearray(ref.read_bytes())
+    at = data.index(b"dataWindow\x00box2i\x00") + len(b"dataWindow\x00box2i\x00") + 4
+    data[at:at + 16] = struct.pack("<4i", 0, 0, 8192, 8192)
+    ref.write_bytes(bytes(data))
+    msg = cli_refuses(capsys, ["compare", scene, "--reference", ref], "ref.exr", "8193x8193", "67108864")
+    assert "override" not in msg and "s.toml" not in msg
+
+
+def test_reference_resuming_onto_broken_sums_is_refused_before_mitsuba(reference_files, capsys, monkeypatch):
+    """popvol reference adding passes to a reference whose sums hold NaN: one line naming the
+    .npz and the array before Mitsuba starts (after it had run, the .exr was blamed)."""
+    import popvol.reference
+    from popvol.reference import scene_digest
+    scene, ref = reference_files
+    monkeypatch.setattr(popvol.reference, "import_mitsuba", lambda *a, **k: pytest.fail("Mitsuba started"))
+    meta = {"spp": 8, "passes": 2, "spp_per_pass": 4, "seconds": 1.0, "scene_digest": scene_digest(load_scene(scene))}
+    Path(str(ref) + ".json").write_text(json.dumps(meta))
+    np.savez(Path(str(ref) + ".npz"), **{**SUMS, "sum": with_nan(SUM)})
+    before = ref.read_bytes()
+    cli_refuses(capsys, ["reference", scene, "-o", ref, "--spp", "8", "--passes", "2"], "ref.exr.npz",
+                "sum has 1 values", "NaN")
+    assert ref.read_bytes() == before
+
+
+@pytest.mark.parametrize("medium, field, words", [
+    ('file = "nope.npz"', "medium.file", ["volume file", "nope.npz", "not found"]),
+    ('file = "."', "medium.file", ["is a folder"]),
+    ('file = "blob.npz"\nalbedo = {file = "nope.npz"}', "medium.albedo.file", ["volume file", "nope.npz", "not found"]),
+    ('file = "blob.npz"\ng = {file = "sub/nope.vol"}', "medium.g.file", ["nope.vol", "not found"]),
+])
+def test_a_missing_volume_file_names_the_scene_and_the_field(tmp_path, capsys, no_solve, blob, medium, field, words):
+    scene = toml_scene(tmp_path, f"[medium]\ntype = \"file\"\n{medium}\n[[lights]]\ndirection = [0, -1, 0]\n")
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], f"{scene}: {field}: ", *words)
 
 
 def test_rgba_exr_is_read_as_its_rgb(tmp_path):
@@ -620,6 +746,13 @@ def test_a_bad_width_option_is_not_blamed_on_the_scene(tmp_path, capsys, no_solv
 def test_an_output_name_ending_in_a_slash_is_a_folder(tmp_path, capsys, no_solve):
     scene = toml_scene(tmp_path, TINY_TOML)
     cli_refuses(capsys, ["render", scene, "-o", f"{tmp_path / 'out.png'}/"], "names a folder")
+
+
+@pytest.mark.parametrize("text", ["1-10:-2", "1-10:0", "10-1", "1-10: +2"])
+def test_a_bad_frame_range_says_what_a_range_must_be(text):
+    from popvol.sequence import parse_frames
+    with pytest.raises(PopvolError, match=r"\(A <= B, STEP >= 1\)$"):
+        parse_frames(text, "--frames", "popvol render")
 
 
 @pytest.mark.parametrize("text", ["１-３", "1-٣"])

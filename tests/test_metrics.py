@@ -279,3 +279,34 @@ def test_equal_error_spp_follows_the_reference_noise_falling_as_one_over_spp():
     assert metrics.equal_error(0.1, None, 64, 10.0, 1.0) == {"spp": None, "seconds": None, "speedup": None}
     assert metrics.equal_error(0.1, 0.01, 64, None, 1.0)["seconds"] is None
     assert metrics.equal_error(0.005, 0.01, 64, 10.0, 1.0)["spp"] is None
+
+
+def test_equal_error_at_extreme_figures_is_finite_or_none_without_warnings():
+    """Figures whose quotient overflows (a recorded time of 1e308 s, NumPy scalars as compare
+    passes them) give None, not inf and NumPy's multi-line RuntimeWarning."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        eq = metrics.equal_error(np.float64(0.2), np.float64(0.1), 4, np.float64(1e308), 1e-10)
+        assert eq == {"spp": pytest.approx(2.0), "seconds": pytest.approx(5e307), "speedup": None}
+        eq = metrics.equal_error(np.float64(1e-300), np.float64(1e-310), 2**31 - 1, 1e9, 1e-3)
+        assert all(v is None or np.isfinite(v) for v in eq.values())
+        assert metrics.equal_error(np.float64(np.inf), np.float64(0.1), 4, 1.0, 1.0)["spp"] is None
+        assert metrics.equal_error(np.float64(0.2), np.float64(np.nan), 4, 1.0, 1.0)["spp"] is None
+
+
+@pytest.mark.parametrize("target, scale", [
+    ([0.0, 0.0, 0.0], 2.0),            # the cube in the middle of the view
+    ([0.0, 0.3, 6.0], 2.0),            # looking away from it
+    ([1.2, 0.0, 0.0], 2.0),            # the cube off the centre of the view
+    ([0.0, 0.0, 0.0], 1e-3),           # too thin: optical depth at most 1.03e-3
+    ([0.0, 0.0, 0.0], 0.00975),        # only the two longest chords (1.027) pass 0.01
+    ([0.0, 0.0, 0.0], 0.0),
+])
+def test_medium_in_view_is_whether_the_optical_depth_mask_has_a_pixel(target, scale):
+    sc = box_scene(width=41, height=23, scale=scale)
+    sc.camera = Camera(sc.camera.origin, np.asarray(target), fov=40.0, width=41, height=23)
+    mask = metrics.optical_depth_mask(sc)
+    assert metrics.medium_in_view(sc) == bool(mask.any())
+    if scale == 0.00975:
+        assert mask.sum() == 2

@@ -237,6 +237,37 @@ def test_compare_command_writes_metrics_and_figure(blob_file, tmp_path):
     assert 0.2 < res["brightness_ratio"] < 5 and fig.stat().st_size > 1000
 
 
+def test_compare_refuses_a_reference_rendered_for_another_scene(blob_file, tmp_path, capsys):
+    """The reference records the digest of what Mitsuba saw (path_traced_digest): compare takes
+    the scene with another method (--gather 0 here) and refuses it with a brighter sun (x100),
+    in one line naming the reference, before solving. Resuming takes the same rule."""
+    from popvol.cli import main
+    from popvol.reference import path_traced_digest
+    text = (f'[medium]\nfile = "{blob_file}"\nscale = 2.0\n[[lights]]\ndirection = [0.3, -1, -0.4]\n'
+            '[camera]\norigin = [0.3, 0.4, 2.5]\ntarget = [0, 0, 0]\nwidth = 16\nheight = 12\n')
+    scene_toml, bright_toml = tmp_path / "blob.toml", tmp_path / "bright.toml"
+    scene_toml.write_text(text)
+    bright_toml.write_text(text.replace("direction = [0.3, -1, -0.4]\n", "direction = [0.3, -1, -0.4]\nirradiance = 100\n"))
+    ref = tmp_path / "ref.exr"
+    with pytest.raises(SystemExit) as e:
+        main(["reference", str(scene_toml), "-o", str(ref), "--spp", "8", "--passes", "2"])
+    assert e.value.code == 0
+    meta = json.loads((tmp_path / "ref.exr.json").read_text())
+    assert meta["path_traced_digest"] == path_traced_digest(popvol.load_scene(scene_toml))
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        main(["compare", str(scene_toml), "--reference", str(ref), "--gather", "0"])
+    assert e.value.code == 0 and "relMSE" in capsys.readouterr().out
+    for command in (["compare", str(bright_toml), "--reference", str(ref)],
+                    ["reference", str(bright_toml), "-o", str(ref), "--spp", "8", "--passes", "2"]):
+        with pytest.raises(SystemExit) as e:
+            main(command)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert e.value.code == 2 and len(err) == 1, err
+        assert err[0].startswith(f"popvol: error: {ref}: was rendered for another scene"), err
+    assert load_reference(ref).spp == 8
+
+
 def test_metrics_on_known_images(rng):
     ref = rng.random((8, 10, 3)) + 0.1
     assert metrics.relmse(ref, ref) == 0 and metrics.rmse(ref, ref) == 0

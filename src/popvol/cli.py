@@ -102,7 +102,8 @@ def cli():
 @click.option("--no-warm-start", is_flag=True, help="With frames: solve every frame from scratch.")
 def render(scene, output, exr, width, height, stats, frames, video, workers, scheduler, no_warm_start, **knobs):
     """Render SCENE (a TOML file; the built-in demo cloud if omitted) to an image, or the
-    frames of an animated scene (docs/SCENE.md, "Sequences") to one image per frame."""
+    frames of an animated scene (docs/SCENE.md, "Sequences") to one image per frame. An image
+    of a single scene that shows no medium, or is black, is written with a warning."""
     from .io.files import write_text_atomically
     from .io.images import write_image
     from . import solve
@@ -151,6 +152,16 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
     seconds = {"load": t_load, **solution.seconds, "render": t_render, "write": t_write,
                "total": time.perf_counter() - t0}
     info = solution.stats()
+    from .metrics import MASK_OPTICAL_DEPTH, medium_in_view
+    black = not img.any()
+    if not medium_in_view(sc):          # a legitimate render, but rarely the one meant
+        click.echo(f"popvol: warning: no camera ray crosses the medium (optical depth > {MASK_OPTICAL_DEPTH:g} "
+                   "through a pixel's centre): the camera looks away from it, or medium.scale x its density is too "
+                   f"thin to see; {output} shows the background alone" + (", which is black" if black else ""),
+                   err=True)
+    elif black:
+        click.echo(f"popvol: warning: the image is black (every pixel 0): no light reaches the camera from the "
+                   f"medium; are the lights' irradiance or intensity 0?", err=True)
     for d in info["domains"]:
         if not d["converged"]:
             click.echo(f"popvol: warning: light {d['light']} stopped after {d['iterations']} iterations "
@@ -364,23 +375,26 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     the relMSE against a noiseless reference, extrapolated from the relMSE against the
     reference and against each half (a mean of P passes adds about c / P); and the equal-error
     speed-up: the samples per pixel, and seconds at the reference's recorded rate, that the
-    reference would need for its noise to equal popvol's error, over popvol's time."""
+    reference would need for its noise to equal popvol's error, over popvol's time. A reference
+    whose metadata records another scene (its path_traced_digest) is refused."""
     from . import metrics
     from .io.images import write_image
     from . import solve
-    from .reference import load_reference
+    from .reference import check_reference_scene, load_reference
     from .renderer import render as render_image
     from .scene import load_scene
     from .io.files import write_text_atomically
     outputs = {"--json": (json_out, (".json",)), "--figure": (figure, (".png",)),
                "-o/--output": (output, (".png", ".exr"))}
     # the reference and its sidecars (popvol reference's REF.exr.json and REF.exr.npz) are inputs
-    references = [ref_path, ref_path + ".json", ref_path + ".npz"]
-    _check_outputs(outputs, [p for p in [scene, *references] if p])
+    references = {ref_path: "the reference", ref_path + ".json": "the reference's metadata",
+                  ref_path + ".npz": "the reference's per-pixel sums"}
+    _check_outputs(outputs, [scene] if scene else [], references)
     ref = load_reference(ref_path)
     h, w = ref.image.shape[:2]
     sc = load_scene(scene, width=w, height=h, **_method_overrides("compare", knobs))
-    _check_outputs(outputs, [*sc.files, *references])
+    check_reference_scene(ref_path, ref.meta, sc)
+    _check_outputs(outputs, sc.files, references)
     t0 = time.perf_counter()
     solution = solve(sc)
     img = render_image(sc, solution)
@@ -425,7 +439,7 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
     eq = res["equal_error"]
     if eq["seconds"] is not None:
         click.echo(f"equal error: the reference would need {eq['spp']:.3g} spp, {eq['seconds']:.3g} s at its "
-                   f"measured {res['reference_seconds'] / ref.spp:.3g} s per spp: x{eq['speedup']:.3g} popvol's time")
+                   f"measured {res['reference_seconds'] / ref.spp:.3g} s per spp: x{_fmt(eq['speedup'], '.3g')} popvol's time")
     elif eq["spp"] is not None:
         click.echo(f"equal error: the reference would need {eq['spp']:.3g} spp (its render time is not recorded)")
     else:
@@ -495,10 +509,13 @@ def _check_writable(path: str, option: str) -> None:
     check_writable_folder(parent, f"{option} {path}")
 
 
-def _check_outputs(outputs: dict, inputs) -> None:
+def _check_outputs(outputs: dict, inputs, other_inputs: dict | None = None) -> None:
     """Before any work: each output (option -> (path or None, allowed suffixes)) has an allowed
-    suffix, a folder to go in, and is neither an input file nor another output."""
+    suffix, a folder to go in, and is neither an input file nor another output. ``inputs``: the
+    scene's files; ``other_inputs``: other input files, path -> what it is ("the reference")."""
     seen = {Path(p).resolve(): "the scene's input file " + str(p) for p in inputs}
+    for p, what in (other_inputs or {}).items():
+        seen.setdefault(Path(p).resolve(), f"{what}, {p}")
     for option, (path, suffixes) in outputs.items():
         if path is None:                  # not given ("" is given, and has no suffix)
             continue

@@ -150,6 +150,40 @@ def _optical_depth(dirs, o, lo, hi, density, origin, voxel, h, out):
         out[r] = acc * dt
 
 
+def medium_in_view(scene, threshold: float = MASK_OPTICAL_DEPTH) -> bool:
+    """Whether any pixel is in :func:`optical_depth_mask`: some camera ray through a pixel's
+    centre crosses the medium with optical depth above ``threshold``. False at once where the
+    medium cannot reach it (max(scale) x max(density) x the box's diagonal); else the rays are
+    marched as :func:`camera_optical_depth` marches them, in chunks that grow from 256 rays,
+    spread over the image (a stride permutation of the pixels), until one crosses: a medium in
+    view is found after a few rays, and the directions of a large image are never all held."""
+    cam, med = scene.camera, scene.medium
+    lo, hi = med.bounds
+    scale = float(np.max(med.scale))
+    if not scale * float(med.density.max()) * float(np.linalg.norm(hi - lo)) > threshold:
+        return False
+    n, w, h = cam.width * cam.height, cam.width, cam.height
+    stride = next(p for p in (1_000_003, 999_983, 999_979) if math.gcd(p, n) == 1)
+    fwd, right, up = cam.basis()
+    tan_half = np.tan(np.radians(cam.fov) / 2)
+    origin, voxel = np.asarray(med.origin, np.float64), np.asarray(med.voxel_size, np.float64)
+    start, size = 0, 256
+    while start < n:
+        idx = (np.arange(start, min(start + size, n), dtype=np.int64) * stride) % n
+        px, py = idx % w + 0.5, idx // w + 0.5           # as Camera.ray_directions
+        sx = (2 * px / w - 1) * tan_half * (w / h)
+        sy = (1 - 2 * py / h) * tan_half
+        d = fwd + sx[:, None] * right + sy[:, None] * up
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        tau = np.zeros(len(idx))
+        _optical_depth(np.ascontiguousarray(d), np.asarray(cam.origin, np.float64), lo, hi, med.density, origin,
+                       voxel, 0.5 * float(voxel.min()), tau)
+        if np.any(tau * scale > threshold):
+            return True
+        start, size = start + size, min(2 * size, 65536)
+    return False
+
+
 def optical_depth_mask(scene, threshold: float = MASK_OPTICAL_DEPTH) -> np.ndarray:
     """bool (H, W): the pixels whose camera ray crosses the medium with optical depth above
     ``threshold`` (:func:`camera_optical_depth`): the medium's pixels whatever the background."""
@@ -269,18 +303,23 @@ def equal_error(error, noise, ref_spp, ref_seconds, popvol_seconds) -> dict:
     each.
 
     Returns {"spp", "seconds", "speedup"} (speedup = those seconds / ``popvol_seconds``), each
-    None when it cannot be told: no noise estimate (fewer than 2 passes), no timing, or an error
-    no larger than the noise (the reference is too noisy to show popvol's error)."""
+    None when it cannot be told: no noise estimate (fewer than 2 passes), no timing, an error
+    no larger than the noise (the reference is too noisy to show popvol's error), or a figure
+    that would not be a finite number (computed in Python floats: no NumPy overflow warning)."""
     out = {"spp": None, "seconds": None, "speedup": None}
-    if noise is None or not (noise > 0) or error is None or not math.isfinite(error):
+    if noise is None or error is None:
         return out
-    if not error > noise:
+    noise, error = float(noise), float(error)
+    if not (math.isfinite(noise) and noise > 0 and math.isfinite(error) and error > noise):
         return out
-    out["spp"] = ref_spp * noise / error
-    if ref_seconds and ref_seconds > 0 and ref_spp > 0:
-        out["seconds"] = ref_seconds / ref_spp * out["spp"]
-        if popvol_seconds and popvol_seconds > 0:
-            out["speedup"] = out["seconds"] / popvol_seconds
+
+    def finite(x):
+        return x if math.isfinite(x) else None
+    out["spp"] = finite(float(ref_spp) * (noise / error))
+    if out["spp"] is not None and ref_seconds and ref_seconds > 0 and ref_spp > 0:
+        out["seconds"] = finite(float(ref_seconds) / float(ref_spp) * out["spp"])
+        if out["seconds"] is not None and popvol_seconds and popvol_seconds > 0:
+            out["speedup"] = finite(out["seconds"] / float(popvol_seconds))
     return out
 
 

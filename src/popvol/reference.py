@@ -33,26 +33,40 @@ of squares of the pass means (float64), from which the reference's own noise is 
 passes of odd number, and all the passes added to a reference made before B was kept. The
 passes in B and those outside it are two independent images of the same scene
 (:attr:`Reference.halves`), so that pixels can be ranked by one and measured against the other
-(:func:`popvol.metrics.band_ratios`).
+(:func:`popvol.metrics.band_ratios`). The metadata also keeps two digests of the scene:
+``scene_digest`` (:func:`scene_digest`) and ``path_traced_digest`` (:func:`path_traced_digest`,
+what Mitsuba saw), by which ``popvol compare`` refuses a reference of another scene.
+:func:`load_reference` checks the three files, and against each other.
 """
 from __future__ import annotations
 
 import glob
 import hashlib
 import json
+import math
 import os
 import time
+import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from . import check
+from .camera import MAX_PIXELS, MAX_SIDE
 from .errors import PopvolError
 from .io.files import write_atomically, write_text_atomically
 from .scene import Scene
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb")
 MAX_SPP = 2 ** 31 - 1      # Mitsuba takes samples per pixel, and path lengths, as 32-bit integers
+#: The longest Mitsuba time a reference's metadata may record (``seconds``): about 32 years
+MAX_SECONDS = 1e9
+#: The reference's image is the mean of its passes, sum / passes, written as float32 (Mitsuba's
+#: rounding residue zeroed, load_reference): it must agree with the sums this closely (relative
+#: to the pixel, and to the brightest pixel), loosely enough for a copy saved as half floats
+SUMS_RTOL, SUMS_ATOL = 1e-3, 1e-4
 
 
 def import_mitsuba(variant: str = "scalar_rgb"):
@@ -143,7 +157,11 @@ def mitsuba_dict(scene: Scene, mi, max_depth: int = 1024, spp: int = 16) -> dict
 
 
 def scene_digest(scene: Scene) -> str:
-    """A short hash of everything that changes the reference image (not the popvol method)."""
+    """A short hash of the scene that popvol lights: the medium, the camera (the image's size
+    included), the background, the environment map and every light, the K directional lights
+    popvol decomposes an environment into included (so it changes with popvol's decomposition
+    and ``lights = K``, which Mitsuba does not see); not the method. :mod:`popvol.sequence`
+    keys its frames on it; a reference's metadata keeps it as ``scene_digest``."""
     h = hashlib.sha256()
     med, cam = scene.medium, scene.camera
     h.update(np.ascontiguousarray(med.density).tobytes())
@@ -155,6 +173,45 @@ def scene_digest(scene: Scene) -> str:
     if scene.environment is not None:
         h.update(np.ascontiguousarray(scene.environment.radiance).tobytes())
     return h.hexdigest()[:16]
+
+
+def path_traced_digest(scene: Scene) -> str:
+    """A short hash of what the path tracer sees (:func:`mitsuba_dict`): the medium (density,
+    box, scale, albedo, g), the camera (origin, target, up, fov, width and height), the
+    background, the environment map itself and the lights but those popvol decomposed an
+    environment into; not the method. A reference's metadata keeps it as
+    ``path_traced_digest``: ``popvol compare`` refuses a reference whose digest differs from
+    its scene's, and ``popvol reference`` adds passes only to a reference of the same one."""
+    h = hashlib.sha256(b"popvol path-traced scene 1")
+    med, cam = scene.medium, scene.camera
+    h.update(np.asarray(med.density.shape, np.int64).tobytes())
+    h.update(np.ascontiguousarray(med.density).tobytes())
+    for v in (med.voxel_size, med.origin, med.scale, med.albedo, med.g, cam.origin, cam.target, cam.up,
+              [cam.fov, cam.width, cam.height], scene.background):
+        h.update(np.asarray(v, np.float64).tobytes())
+    for l in scene.lights:
+        if not l.from_environment:
+            h.update(l.digest())
+    if scene.environment is not None:
+        h.update(np.ascontiguousarray(scene.environment.radiance).tobytes())
+    return h.hexdigest()[:16]
+
+
+def check_reference_scene(path, meta: dict, scene: Scene) -> None:
+    """A one-line PopvolError unless the reference at ``path`` (its metadata ``meta``) was
+    rendered for ``scene``, as far as its metadata tells: by ``path_traced_digest``. A
+    reference written before popvol kept that digest is not checked (its ``scene_digest``
+    also covers popvol's decomposition of an environment into lights, which has changed
+    since some were made)."""
+    recorded = meta.get("path_traced_digest")
+    if recorded is None or recorded == path_traced_digest(scene):
+        return
+    meta_path = _sidecars(Path(path))[0]
+    made_for = f" ({meta_path.name} names {check._show(meta['scene'])})" if isinstance(meta.get("scene"), str) else ""
+    command = f"popvol reference {scene.source}" if Path(scene.source).is_file() else "popvol reference"
+    raise PopvolError(f"{path}: was rendered for another scene{made_for}: its medium, lights, camera or "
+                      f"background differ from {scene.source}'s; render a reference of this scene ({command} "
+                      "-o NEW.exr) and compare with that")
 
 
 @dataclass
@@ -172,10 +229,12 @@ class Reference:
 
     @property
     def half_passes(self) -> tuple[int, int] | None:
-        """The passes in each of :attr:`halves` (outside subset B, in it), None without halves."""
-        if self.halves is None:
+        """The passes in each of :attr:`halves` (outside subset B, in it): ``meta["passes_b"]``
+        in B. None without halves, or without an integer passes_b in [1, passes) (which
+        :func:`load_reference` checks)."""
+        nb = self.meta.get("passes_b")
+        if self.halves is None or not (isinstance(nb, int) and not isinstance(nb, bool) and 1 <= nb < self.passes):
             return None
-        nb = int(self.meta.get("passes_b", 0))
         return self.passes - nb, nb
 
     def noise_relmse(self, mask: np.ndarray | None = None) -> float | None:
@@ -206,12 +265,24 @@ def _scene_name(source: str, output: Path) -> str:
 
 
 def load_reference(path) -> Reference:
-    """The reference at ``path`` (an EXR of radiance: finite and >= 0, not black) with what its
-    sidecars say (popvol reference's REF.exr.json and REF.exr.npz, each checked)."""
-    from .io.images import read_exr
+    """The reference at ``path`` (an EXR of radiance: finite and >= 0, not black, at most a
+    camera's size) with what its sidecars say (popvol reference's REF.exr.json and REF.exr.npz,
+    each checked, and checked against each other and the image: the metadata's width and
+    height are the image's, its sums divided by its passes are the image)."""
+    return _load_reference(path)[0]
+
+
+def _load_reference(path) -> tuple[Reference, tuple | None]:
+    """:func:`load_reference` and the reference's sums (sum, sumsq, sum_b; None without the
+    metadata or the sums file)."""
+    from .io.images import exr_size, read_exr
     path = Path(path)
     if not path.is_file():
         raise PopvolError(f"{path}: reference image not found")
+    width, height = exr_size(path)
+    if width > MAX_SIDE or height > MAX_SIDE or width * height > MAX_PIXELS:
+        raise PopvolError(f"{path}: the reference is {width}x{height} pixels; popvol renders at the reference's "
+                          f"size, at most {MAX_SIDE} pixels on a side and {MAX_PIXELS} in all (a camera's limit)")
     image = read_exr(path)
     bad = int((~np.isfinite(image)).sum()) + int((image < 0).sum())
     if bad:
@@ -220,58 +291,149 @@ def load_reference(path) -> Reference:
     if not image.any():
         raise PopvolError(f"{path}: the reference is black (every pixel 0); there is nothing to compare with")
     meta_path, sums_path = _sidecars(path)
-    meta, variance, halves, spp, passes = {}, None, None, 0, 1
+    meta, variance, halves, spp, passes, sums = {}, None, None, 0, 1, None
     if meta_path.is_file():
         meta = _read_meta(meta_path)
-        spp, passes = int(meta.get("spp", 0)), int(meta.get("passes", 1))
-    if sums_path.is_file() and passes >= 2:
-        s, s2, sb = _read_sums(sums_path, image.shape)
+        spp, passes = meta["spp"], meta.get("passes", 1)
+        size = (meta.get("width", width), meta.get("height", height))
+        if size != (width, height):
+            raise PopvolError(f"{meta_path}: width x height = {size[0]}x{size[1]}, but the image {path.name} is "
+                              f"{width}x{height}; the metadata belongs to another reference")
+        if sums_path.is_file():
+            sums = _read_sums(sums_path, image.shape, path)
+            _check_sums_are_image(sums[0], passes, image, sums_path, meta_path, path)
+    if sums is not None and passes >= 2:
+        s, s2, sb = sums
         mean = s / passes
         variance = np.maximum(s2 / passes - mean ** 2, 0.0) / (passes - 1)
-        nb = int(meta.get("passes_b", 0))
+        nb = meta.get("passes_b", 0)
         if sb is not None and 1 <= nb < passes:
             halves = ((s - sb) / (passes - nb), sb / nb)
-    return Reference(image, spp, passes, variance, meta, halves)
+    return Reference(image, spp, passes, variance, meta, halves), sums
 
 
 def _read_meta(meta_path: Path) -> dict:
-    """A reference's metadata (REF.exr.json): a JSON object whose spp, passes (integers >= 1)
-    and seconds (>= 0) are checked where present."""
+    """A reference's metadata (REF.exr.json): a JSON object, checked: spp (required) an integer
+    in [1, MAX_SPP], passes an integer in [1, spp], passes_b (the passes in subset B) an integer
+    in [1, passes - 1] (0 with one pass), seconds a number in [0, MAX_SECONDS], width and height
+    integers in [1, MAX_SIDE], the digests strings; each but spp where present. The numbers are returned
+    as ``int`` (``float`` for seconds)."""
     try:
         meta = json.loads(meta_path.read_text())
-    except (OSError, ValueError) as e:
-        raise PopvolError(f"{meta_path}: cannot read reference metadata ({e})") from None
+    except (OSError, ValueError, RecursionError) as e:
+        reason = "nested too deeply" if isinstance(e, RecursionError) else e
+        raise PopvolError(f"{meta_path}: cannot read reference metadata ({reason})") from None
     if not isinstance(meta, dict):
         raise PopvolError(f"{meta_path}: reference metadata must be a JSON object (popvol reference writes one)")
-    _meta_number(meta, "spp", 0, meta_path, int, 1)
-    _meta_number(meta, "passes", 1, meta_path, int, 1)
-    _meta_number(meta, "seconds", 0.0, meta_path, float, 0.0)
+    if "spp" not in meta:
+        raise PopvolError(f"{meta_path}: spp (samples per pixel, an integer in [1, {MAX_SPP}]) is missing; "
+                          "popvol reference writes it")
+    meta["spp"] = spp = _meta_number(meta, "spp", 0, meta_path, int, 1, MAX_SPP)
+    passes = _meta_number(meta, "passes", 1, meta_path, int, 1, spp, f" (at most spp = {spp})")
+    if "passes" in meta:
+        meta["passes"] = passes
+    if "passes_b" in meta:
+        meta["passes_b"] = _meta_number(meta, "passes_b", 0, meta_path, int, min(1, passes - 1), passes - 1,
+                                        f" (passes in subset B, fewer than passes = {passes})")
+    if "seconds" in meta:
+        meta["seconds"] = _meta_number(meta, "seconds", 0.0, meta_path, float, 0.0, MAX_SECONDS)
+    for key in ("width", "height"):
+        if key in meta:
+            meta[key] = _meta_number(meta, key, 1, meta_path, int, 1, MAX_SIDE)
+    for key in ("scene_digest", "path_traced_digest"):
+        if key in meta and not isinstance(meta[key], str):
+            raise PopvolError(f"{meta_path}: {key} = {check._show(meta[key])} must be a string (popvol reference "
+                              "writes a hash of the scene)")
     return meta
 
 
-def _read_sums(sums_path: Path, shape) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+#: The arrays of a reference's REF.exr.npz
+_SUMS_TEXT = "numpy.savez of sum, sumsq and sum_b, as popvol reference writes them"
+
+
+def _read_sums(sums_path: Path, shape, image_path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """A reference's per-pixel sum and sum of squares over its passes and sum over subset B
-    (REF.exr.npz; None where the file has no ``sum_b``), float64 of ``shape`` (H, W, 3)."""
+    (REF.exr.npz; None where the file has no ``sum_b``), float64 of ``shape`` (H, W, 3), the
+    image's (``image_path``). Each must be real numbers, finite and >= 0 (the sums but the sum of
+    squares down to Mitsuba's float32 rounding residue, -1e-6 of their largest), and ``sum_b``
+    at most ``sum``; anything else is a one-line PopvolError naming the file and the array."""
+    from .io.volumes import _check_npz_member
+    arrays = {}
     try:
-        with np.load(sums_path, allow_pickle=False) as z:
-            s, s2 = np.asarray(z["sum"], np.float64), np.asarray(z["sumsq"], np.float64)
-            sb = np.asarray(z["sum_b"], np.float64) if "sum_b" in z.files else None
-    except (OSError, ValueError, KeyError, EOFError) as e:
-        raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums (keys sum and sumsq; "
-                          f"{e})") from None
-    if any(x is not None and x.shape != tuple(shape) for x in (s, s2, sb)):
-        raise PopvolError(f"{sums_path}: sums of shape {s.shape} and {s2.shape} do not match the image's "
-                          f"{tuple(shape)}; resume at the image's size or choose another output")
-    return s, s2, sb
+        # open the file ourselves: np.load leaks its handle when it rejects a file
+        with open(sums_path, "rb") as f, np.load(f, allow_pickle=False) as z:
+            for key in ("sum", "sumsq"):
+                if key not in z.files:
+                    raise PopvolError(f"{sums_path}: has no array {key!r} (arrays in it: {', '.join(z.files) or 'none'}); "
+                                      f"the reference's per-pixel sums are a {_SUMS_TEXT}")
+            for key in ("sum", "sumsq", "sum_b"):
+                if key in z.files:
+                    _check_npz_member(z, key, sums_path)
+                    arrays[key] = z[key]
+    except PopvolError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error, NotImplementedError) as e:
+        if "pickled" in str(e):             # NumPy's word for anything that is neither zip nor .npy
+            raise PopvolError(f"{sums_path}: is not an .npz archive; the reference's per-pixel sums are a "
+                              f"{_SUMS_TEXT}") from None
+        raise PopvolError(f"{sums_path}: cannot read the reference's per-pixel sums ({_SUMS_TEXT}): {e}") from None
+    except (TypeError, AttributeError):     # np.load gave a plain array: .npy content
+        raise PopvolError(f"{sums_path}: holds a single .npy array, not an .npz archive; the reference's per-pixel "
+                          f"sums are a {_SUMS_TEXT}") from None
+    shape = tuple(shape)
+    for key, a in arrays.items():
+        if a.shape != shape:
+            raise PopvolError(f"{sums_path}: {key} has shape {a.shape}, but the image {image_path.name} is "
+                              f"{shape[1]}x{shape[0]}: it must have shape {shape} (the file belongs to another "
+                              "reference)")
+        if a.dtype.kind not in "fiu":
+            raise PopvolError(f"{sums_path}: {key} has dtype {a.dtype}; the sums are real numbers (float64)")
+    out = {key: np.asarray(a, np.float64) for key, a in arrays.items()}
+    with np.errstate(invalid="ignore"):
+        top = float(np.max(np.where(np.isfinite(out["sum"]), out["sum"], 0.0)))
+        floor = -1e-6 * max(top, 0.0)       # Mitsuba's film leaves float32 rounding residue below 0
+        for key, a in out.items():
+            bad = ~np.isfinite(a) | (a < (0.0 if key == "sumsq" else floor))
+            if bad.any():
+                y, x, _ = (int(v) for v in np.argwhere(bad)[0])
+                raise PopvolError(f"{sums_path}: {key} has {int(bad.sum())} values that are NaN, infinite or "
+                                  f"negative (the first at pixel x = {x}, y = {y}); sums of radiance over the "
+                                  "passes are finite and >= 0")
+    if "sum_b" in out:
+        over = out["sum_b"] > out["sum"] + 1e-6 * top + 1e-9 * np.abs(out["sum"])
+        if over.any():
+            y, x, _ = (int(v) for v in np.argwhere(over)[0])
+            raise PopvolError(f"{sums_path}: sum_b exceeds sum at {int(over.sum())} values (the first at pixel "
+                              f"x = {x}, y = {y}); sum_b sums a subset of the passes that sum sums")
+    return out["sum"], out["sumsq"], out.get("sum_b")
 
 
-def _meta_number(meta: dict, key: str, default, meta_path: Path, kind, minimum):
-    """meta[key] (``default`` where absent) as ``kind``, finite and >= ``minimum``."""
+def _check_sums_are_image(s: np.ndarray, passes: int, image: np.ndarray, sums_path: Path, meta_path: Path,
+                          path: Path) -> None:
+    """A one-line PopvolError unless sum / passes is the reference's image (within SUMS_RTOL of
+    each pixel and SUMS_ATOL of the brightest): otherwise the metadata's passes or the sums
+    belong to another reference."""
+    mean, img = s / passes, image.astype(np.float64)
+    off = np.abs(mean - img) - (SUMS_RTOL * np.abs(img) + SUMS_ATOL * float(img.max()))
+    if np.any(off > 0):
+        y, x, c = (int(v) for v in np.unravel_index(int(np.argmax(off)), off.shape))
+        raise PopvolError(f"{sums_path}: sum / passes (passes = {passes} in {meta_path.name}) is "
+                          f"{mean[y, x, c]:.6g} at pixel x = {x}, y = {y} where the image {path.name} holds "
+                          f"{img[y, x, c]:.6g}; the sums or the passes belong to another reference (render it again "
+                          "with popvol reference --new)")
+
+
+def _meta_number(meta: dict, key: str, default, meta_path: Path, kind, minimum, maximum=math.inf, why: str = ""):
+    """meta[key] (``default`` where absent) as ``kind``, finite and in [``minimum``, ``maximum``]
+    (``why``: what the range is, said after it)."""
     value = meta.get(key, default)
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and (kind is float or float(value).is_integer())
-    if not ok or not np.isfinite(value) or (key in meta and value < minimum):
-        raise PopvolError(f"{meta_path}: {key} = {value!r} must be {'an integer' if kind is int else 'a number'} "
-                          f">= {minimum}")
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    ok = number and (isinstance(value, int) or (math.isfinite(value) and (kind is float or value.is_integer())))
+    if not ok or (key in meta and not minimum <= value <= maximum):
+        what = "an integer" if kind is int else "a number"
+        lo, hi = (f"{v:g}" if isinstance(v, float) else v for v in (minimum, maximum))
+        allowed = f">= {lo}" if maximum == math.inf else f"in [{lo}, {hi}]"
+        raise PopvolError(f"{meta_path}: {key} = {check._show(value)} must be {what} {allowed}{why}")
     return kind(value)
 
 
@@ -279,8 +441,11 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
                      max_depth: int = 1024, resume: bool = True, progress=None) -> Reference:
     """Render ``spp`` more samples per pixel in ``passes`` passes and add them to ``output``.
 
-    With ``resume`` and an existing reference of the same scene (same digest), its passes are
-    kept and the new ones added; a reference of another scene is an error.
+    With ``resume`` and an existing reference of the same scene (the same
+    :func:`path_traced_digest`, or for a reference made before popvol kept it the same
+    :func:`scene_digest`), its passes are kept and the new ones added; a reference of another
+    scene is an error, and so is one that :func:`load_reference` refuses (checked before
+    Mitsuba runs) or one that would pass MAX_SPP samples per pixel.
     """
     from .io.images import write_exr
     output = Path(output)
@@ -290,8 +455,9 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
         raise PopvolError(f"--max-depth = {max_depth} must be -1 (no limit) or in [2, {MAX_SPP}] "
                           "(a path of length 1 sees no scattering)")
     passes = min(passes, spp)
+    per_pass = spp // passes
     meta_path, sums_path = _sidecars(output)
-    digest = scene_digest(scene)
+    digest, traced = scene_digest(scene), path_traced_digest(scene)
     s = s2 = sb = None
     done_passes = done_spp = nb = 0
     old = False                 # a reference made before subset B was kept: new passes form B
@@ -301,24 +467,31 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
             raise PopvolError(f"{output}: exists without its {meta_path.name} / {sums_path.name}; "
                               "remove it or choose another output to start a new reference")
         meta = _read_meta(meta_path)
-        if meta.get("scene_digest") != digest:
-            raise PopvolError(f"{output}: was rendered for another scene ({meta.get('scene')}); "
+        same = (meta["path_traced_digest"] == traced if "path_traced_digest" in meta
+                else meta.get("scene_digest") == digest)
+        if not same:
+            raise PopvolError(f"{output}: was rendered for another scene ({check._show(meta.get('scene'))}); "
                               "choose another output")
-        s, s2, sb = _read_sums(sums_path, (scene.camera.height, scene.camera.width, 3))
-        done_passes, done_spp = int(meta.get("passes", 1)), int(meta.get("spp", 0))
-        nb = _meta_number(meta, "passes_b", 0, meta_path, int, 0) if sb is not None else 0
-        old = sb is None
+        ref, (s, s2, sb) = _load_reference(output)
+        if ref.image.shape[:2] != (scene.camera.height, scene.camera.width):
+            raise PopvolError(f"{output}: is {ref.image.shape[1]}x{ref.image.shape[0]} pixels; resume at that size "
+                              f"(now {scene.camera.width}x{scene.camera.height}) or choose another output")
+        done_passes, done_spp = ref.passes, ref.spp
+        old = sb is None or "passes_b" not in meta      # sum_b without its count: start B afresh
+        nb = 0 if old else meta["passes_b"]
         if old:
             sb = np.zeros_like(s)
         seconds = float(meta.get("seconds", 0.0))
         if _meta_number(meta, "max_depth", 1024, meta_path, int, -1) != max_depth:
             raise PopvolError(f"{output}: was rendered with --max-depth {meta.get('max_depth', 1024)}; resume "
                               f"with the same (now {max_depth}) or choose another output")
-        if _meta_number(meta, "spp_per_pass", 0, meta_path, int, 1) != spp // passes:
+        if _meta_number(meta, "spp_per_pass", 0, meta_path, int, 1) != per_pass:
             raise PopvolError(f"{output}: has {meta.get('spp_per_pass')} samples per pass; resume "
-                              f"with --spp / --passes giving the same (now {spp // passes})")
+                              f"with --spp / --passes giving the same (now {per_pass})")
+        if done_spp + per_pass * passes > MAX_SPP:
+            raise PopvolError(f"{output}: has {done_spp} spp; {per_pass * passes} more would pass {MAX_SPP} "
+                              "(the most a reference records); choose another output")
     mi = import_mitsuba(variant)
-    per_pass = spp // passes
     mscene = mi.load_dict(mitsuba_dict(scene, mi, max_depth, per_pass))
     for p in range(passes):
         t0 = time.perf_counter()
@@ -342,7 +515,7 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
     mean = mean.astype(np.float32)
     write_exr(output, mean)
     write_atomically(sums_path, lambda tmp: np.savez(tmp, sum=s, sumsq=s2, sum_b=sb))
-    meta = {"scene": _scene_name(scene.source, output), "scene_digest": digest,
+    meta = {"scene": _scene_name(scene.source, output), "scene_digest": digest, "path_traced_digest": traced,
             "spp": done_spp + per_pass * passes, "passes": n, "passes_b": nb, "spp_per_pass": per_pass,
             "variant": variant, "max_depth": max_depth, "integrator": "volpath",
             "mitsuba": mi.__version__, "seconds": seconds,

@@ -63,7 +63,9 @@ MAX_SCENE_FILE_BYTES = 4 * 2**20
 
 def read_scene_file(path) -> dict:
     """The TOML of scene file ``path`` as a dict; a missing, unreadable, oversized (above
-    MAX_SCENE_FILE_BYTES) or invalid file is a one-line PopvolError naming it."""
+    MAX_SCENE_FILE_BYTES), invalid or too deeply nested (beyond what Python's TOML parser
+    recurses into, some 500 levels of arrays or inline tables) file is a one-line PopvolError
+    naming it."""
     p = Path(path)
     if not p.is_file():
         raise PopvolError(f"{p}: scene file not found" if not p.exists() else f"{p}: not a file")
@@ -78,6 +80,9 @@ def read_scene_file(path) -> dict:
         raise PopvolError(f"{p}: cannot read scene file ({e})") from None
     except tomllib.TOMLDecodeError as e:
         raise PopvolError(f"{p}: invalid TOML ({e})") from None
+    except RecursionError:               # tomllib recurses once per level of [ or {
+        raise PopvolError(f"{p}: arrays or inline tables nested too deeply to read (a scene's values nest "
+                          "a few levels at most)") from None
 
 
 def load_scene(path: str | Path | None = None, frame: int | None = None, **overrides) -> Scene:
@@ -225,7 +230,8 @@ def _medium(m: dict, src: str, base: Path) -> Medium:
     if unused:
         raise PopvolError(f"{src}: medium.{unused[0]} applies to medium.type = 'procedural', not to a "
                           "medium read from a file")
-    vol = read_volume(_path(m["file"], "medium.file", src, base), _text(m.get("grid"), "medium.grid", src))
+    vol = read_volume(_path(m["file"], "medium.file", src, base), _text(m.get("grid"), "medium.grid", src),
+                      field=f"{src}: medium.file")
     voxel = m.get("voxel_size", vol.voxel_size)
     origin = m.get("origin", vol.origin)
     if "voxel_size" not in m or "origin" not in m:     # a value from the file: name the file
@@ -251,7 +257,7 @@ def _optics_grid(spec: dict, key: str, m: dict, src: str, base: Path) -> np.ndar
     path = _path(spec.get("file", m.get("file")), name, src, base)
     # a .vol file holds one unnamed grid; the other formats name theirs (by default the key's name)
     grid = _text(spec.get("grid", None if path.suffix.lower() == ".vol" else key), f"medium.{key}.grid", src)
-    return read_volume(path, grid, signed=(key == "g")).density
+    return read_volume(path, grid, signed=(key == "g"), field=f"{src}: {name}").density
 
 
 def _optics(med, given: dict) -> dict:

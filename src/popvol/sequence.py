@@ -89,7 +89,8 @@ def parse_frames(value, name: str, src: str) -> list[int]:
         for item in value.split(","):
             m = re.fullmatch(r"\s*([0-9]+)\s*(?:-\s*([0-9]+)\s*(?::\s*([0-9]+)\s*)?)?", item, re.ASCII)
             if not m:
-                raise check._error(src, name, value, allowed)
+                signed_step = re.fullmatch(r"\s*[0-9]+\s*-\s*[0-9]+\s*:\s*[-+]\s*[0-9]+\s*", item, re.ASCII)
+                raise check._error(src, name, value, allowed + (" (A <= B, STEP >= 1)" if signed_step else ""))
             a = int(m.group(1))
             b = int(m.group(2)) if m.group(2) is not None else a
             step = int(m.group(3)) if m.group(3) is not None else 1

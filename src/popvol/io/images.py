@@ -260,8 +260,9 @@ MAX_EXR_SIDE = 65536               # pixels on a side of an EXR that popvol read
 MAX_EXR_PIXELS = 2 ** 29           # ... and in all: 6 GiB as float32 RGB
 
 
-def read_exr(path) -> np.ndarray:
-    """float32 (H, W, 3) linear RGB from an EXR with R, G, B channels."""
+def exr_size(path) -> tuple[int, int]:
+    """(width, height) of an EXR from its header alone, at most MAX_EXR_SIDE on a side and
+    MAX_EXR_PIXELS in all; anything else is a one-line PopvolError naming the file."""
     import OpenEXR
     path = Path(path)
     if not path.is_file():
@@ -275,6 +276,15 @@ def read_exr(path) -> np.ndarray:
     if not (0 < width <= MAX_EXR_SIDE and 0 < height <= MAX_EXR_SIDE and width * height <= MAX_EXR_PIXELS):
         raise PopvolError(f"{path}: EXR declares {width}x{height} pixels; popvol reads at most {MAX_EXR_SIDE} "
                           f"on a side and {MAX_EXR_PIXELS:.3g} in all")
+    return width, height
+
+
+def read_exr(path) -> np.ndarray:
+    """float32 (H, W, 3) linear RGB from an EXR with R, G, B channels (its size checked first,
+    :func:`exr_size`)."""
+    import OpenEXR
+    path = Path(path)
+    exr_size(path)
     try:
         with OpenEXR.File(str(path)) as f:
             ch = f.channels()

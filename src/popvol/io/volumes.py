@@ -212,14 +212,17 @@ def write_vol(path, density, bbox_min, bbox_max) -> None:
         raise PopvolError(f"{path}: cannot write ({e.strerror})") from None
 
 
-def read_volume(path, grid: str | None = None, signed: bool = False) -> VolumeData:
+def read_volume(path, grid: str | None = None, signed: bool = False, field: str | None = None) -> VolumeData:
     """Read a grid, choosing the reader by suffix (.npz, .vol, .vdb). Densities must be >= 0;
-    ``signed`` grids (a per-voxel g) may be negative."""
+    ``signed`` grids (a per-voxel g) may be negative. ``field``: where the path came from (e.g.
+    ``"scene.toml: medium.file"``), named where the path is not a file."""
     path = Path(path)
+    where = f"{field}: " if field else ""
     if not path.exists():
-        raise PopvolError(f"{path}: volume file not found")
+        raise PopvolError(f"{where}volume file {path} not found")
     if not path.is_file():
-        raise PopvolError(f"{path}: not a file")
+        raise PopvolError(f"{where}{path} is {'a folder' if path.is_dir() else 'not a file'}; it must name a volume "
+                          f"file ({', '.join(SUFFIXES)})")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         return read_npz(path, grid, signed)
