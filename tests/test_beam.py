@@ -19,8 +19,9 @@ from popvol.scene import Method
 TAU, ALBEDO, G, HALFWIDTH = 10.0, 0.99, 0.8, 0.125
 
 
-def pop_beam(n, rule="moment", decay="poisson", solver="sweep", isotropic="walk", handover=0.5):
-    """The cube [0,1]^3 as an n^3 domain along +x; the beam enters the centre of the x = 0 face."""
+def pop_beam(n, rule="moment", decay="poisson", solver="sweep", isotropic="walk", handover=0.5, ordinates=6):
+    """The cube [0,1]^3 as an n^3 domain along +x; the beam enters the centre of the x = 0 face
+    (``ordinates``: the directions of the "ordinates" solver, 6 or 18)."""
     h = 1.0 / n
     shape = (n, n, n)
     sigma_t = np.full(shape, TAU, np.float32)
@@ -31,7 +32,7 @@ def pop_beam(n, rule="moment", decay="poisson", solver="sweep", isotropic="walk"
     inj = (inside[:, None] & inside[None, :]).astype(np.float32) * h * h
     hand = (handover, handover_factor(sigma_t, sigma_s, g, h)) if isotropic == "diffusion" else None
     r = walk_box(Th, Dh, inj, 1.0, h, rule=rule, solver=solver, tolerance=1e-5, max_iterations=100000,
-                 handover=hand, scatter=scatter_factor(sigma_s, h))
+                 handover=hand, scatter=scatter_factor(sigma_s, h), ordinates=ordinates)
     if hand is not None:                                   # the pipeline's diffusion stage
         r.diffusion = solve_diffusion(*r.handed, sigma_t, sigma_s, g, h, rtol=1e-6)
         r.budget.add_diffusion(r.diffusion)

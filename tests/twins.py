@@ -289,6 +289,118 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
     return sent_packets
 
 
+def lattice18_partition(a: float, o: int, n_points: int = 60_000) -> tuple[np.ndarray, np.ndarray]:
+    """(share float64 (18,), mean cosine float64 (18,)): the lobe HG_a about ordinate o's
+    direction split among the 18 ordinates of the eighteen-ordinate walk (popvol.walk.ORDINATES18),
+    each taking the directions nearer to it than to any other, with each part's mean cosine
+    about its own ordinate. By an independent quadrature of the whole sphere (a Fibonacci
+    spiral of ``n_points`` directions, the exact HG density), not the kernel's table."""
+    from popvol.walk import ORDINATES18
+    axes = ORDINATES18 / np.linalg.norm(ORDINATES18, axis=1)[:, None]
+    dirs, nearest, own = _fibonacci_bins(n_points)
+    if abs(a) >= 1.0:                       # a delta along +-e_o
+        q = o if a > 0 else int(np.flatnonzero((ORDINATES18 == -ORDINATES18[o]).all(axis=1))[0])
+        share, mean = np.zeros(18), np.zeros(18)
+        share[q], mean[q] = 1.0, 1.0
+        return share, mean
+    w = hg.f_hg(dirs @ axes[o], a)
+    share = np.bincount(nearest, w, 18)
+    mean = np.divide(np.bincount(nearest, w * own, 18), share, out=np.zeros(18), where=share > 0)
+    return share / share.sum(), mean
+
+
+_FIBONACCI = {}
+
+
+def _fibonacci_bins(n):
+    """(directions (n, 3), the ordinate nearest each, its cosine to that ordinate), cached."""
+    if n not in _FIBONACCI:
+        from popvol.walk import ORDINATES18
+        axes = ORDINATES18 / np.linalg.norm(ORDINATES18, axis=1)[:, None]
+        i = np.arange(n) + 0.5
+        z = 1.0 - 2.0 * i / n
+        t = i * np.pi * (3.0 - np.sqrt(5.0))
+        r = np.sqrt(1.0 - z * z)
+        dirs = np.stack([r * np.cos(t), r * np.sin(t), z], axis=1)
+        dots = dirs @ axes.T
+        nearest = np.argmax(dots, axis=1)
+        _FIBONACCI[n] = (dirs, nearest, dots[np.arange(n), nearest])
+    return _FIBONACCI[n]
+
+
+def ordinates18_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+    """One Gauss-Seidel sweep of the eighteen-ordinate walk (twin of
+    kernels.ordinates18.ordinates18_sweep), cell by cell, in place, in float64, with each
+    packet's scattered lobe split by :func:`lattice18_partition` at its own a_s (no table).
+    W, Wa (n_d, n_u, n_v, 18). Cells in order of k, i, j (each increasing if its
+    ``forward_*``); at each cell the ordinates o = 0..17 in turn: a packet above ``w_min`` is
+    taken, visits (phi, F) with its path L = |offs[o]| (in cells: 1 on a face, sqrt 2 on an
+    edge) and leaves through the sender's half step Th^L. Of that, S = Sh[src]^L Sh[dst]^L
+    crosses to dst = src + offs[o] unscattered (Th[dst]^L) and keeps its a; the sender's share
+    1 - Sh[src]^L scatters and its parts go to the sender's neighbours (each part n after that
+    neighbour's Th^|offs[n]|); the receiver's share Sh[src]^L (1 - Sh[dst]^L) crosses into dst
+    (Th[dst]^L) and splits there into dst's own ordinates; both with a_s = a (D - S) / (1 - S),
+    D = (Dh[src] Dh[dst])^L. What leaves the grid is tallied. Returns the packets sent."""
+    from popvol.walk import ORDINATES18 as offs
+    n0, n1, n2 = Th.shape
+    Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
+    sent_packets = 0
+
+    def inside(c):
+        return 0 <= c[0] < n0 and 0 <= c[1] < n1 and 0 <= c[2] < n2
+
+    def deliver(e, m, q, dst):
+        if dst[0] < 0:
+            tally[REFLECTED] += e
+        elif dst[0] >= n0:
+            tally[TRANSMITTED] += e
+        elif not inside(dst):
+            tally[SIDE_ESCAPED] += e
+        else:
+            th = Th[dst] ** np.linalg.norm(offs[q])
+            tally[ABSORBED] += e * (1.0 - th)
+            W[dst + (q,)] += e * th
+            Wa[dst + (q,)] += e * th * m
+
+    for k in (range(n0) if forward_d else range(n0 - 1, -1, -1)):
+        for i in (range(n1) if forward_u else range(n1 - 1, -1, -1)):
+            for j in (range(n2) if forward_v else range(n2 - 1, -1, -1)):
+                cell = (k, i, j)
+                for o in range(18):
+                    w = float(W[cell + (o,)])
+                    if w <= w_min:
+                        continue
+                    wa = float(Wa[cell + (o,)])
+                    W[cell + (o,)] = Wa[cell + (o,)] = 0.0
+                    sent_packets += 1
+                    L = float(np.linalg.norm(offs[o]))
+                    phi[cell] += w * L * inv_area
+                    F[:, k, i, j] += wa * L * offs[o] / L * inv_area
+                    a = float(np.clip(wa / w, -1.0, 1.0))
+                    sent = w * Th[cell] ** L
+                    tally[ABSORBED] += w - sent
+                    dst = tuple(int(x) for x in np.add(cell, offs[o]))
+                    sh = Sh[cell] ** L
+                    sh_dst = Sh[dst] ** L if inside(dst) else 1.0
+                    D = (Dh[cell] * (Dh[dst] if inside(dst) else 1.0)) ** L
+                    S = sh * sh_dst
+                    deliver(sent * S, a, o, dst)
+                    if S >= 1.0:
+                        continue
+                    a_s = a * (D - S) / (1.0 - S)
+                    share, mean = lattice18_partition(a_s, o)
+                    e = sent * (1.0 - sh)                      # scattered in the sender's half
+                    for n in range(18):
+                        deliver(e * share[n], mean[n], n, tuple(int(x) for x in np.add(cell, offs[n])))
+                    if inside(dst):                            # scattered in the receiver's half
+                        th = Th[dst] ** L
+                        e = sent * sh * (1.0 - sh_dst)
+                        tally[ABSORBED] += e * (1.0 - th)
+                        W[dst] += e * th * share
+                        Wa[dst] += e * th * share * mean
+    return sent_packets
+
+
 def sweep(R, Ra, Th, Dh, rule, periodic, forward, flip, w_min, inv_area, phi, phia, tally,
           band_rows=16, handover=-1.0, diffusive=None, Q=None, a_stream=1.0):
     """One Gauss-Seidel sweep (twin of kernels.propagation.sweep), cell by cell, in place.

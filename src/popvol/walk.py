@@ -26,6 +26,7 @@ from .domains import check_memory, grow
 from .kernels import binned as KB
 from .kernels import cells as KC
 from .kernels import ordinates as KO
+from .kernels import ordinates18 as KO18
 from .kernels import propagation as K
 from .results import Budget, WalkResult
 
@@ -62,6 +63,94 @@ def ordinate_table(n: int = SPLIT_TABLE_SIZE) -> np.ndarray:
     table[:, :6] = split_table(n)[:, :6]
     table[:, 6] = hg.side_wedge_mean_cosine(np.linspace(-1.0, 1.0, n))
     return table
+
+
+def _lattice18() -> np.ndarray:
+    """int64 (18, 3): the eighteen ordinates' offsets in cells, (d, u, v): the six faces +-d, +-u,
+    +-v, then the twelve edges (+-1, +-1, 0), (+-1, 0, +-1), (0, +-1, +-1)."""
+    faces = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]
+    edges = []
+    for p, q in ((0, 1), (0, 2), (1, 2)):
+        for sp in (1, -1):
+            for sq in (1, -1):
+                v = [0, 0, 0]
+                v[p], v[q] = sp, sq
+                edges.append(tuple(v))
+    return np.array(faces + edges, np.int64)
+
+
+#: the eighteen-ordinate walk's directions as offsets in cells (kernels/ordinates18.py)
+ORDINATES18 = _lattice18()
+#: the groups of rows the eighteen-ordinate sweep runs as a pipeline (one thread each at most),
+#: fixed so that the fields do not depend on the number of threads
+GROUPS18 = 2
+
+
+def _signed_permutations() -> list[np.ndarray]:
+    """The 48 symmetries of the cube: 3x3 signed permutation matrices."""
+    out = []
+    for perm in ((0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 2, 0), (2, 0, 1), (2, 1, 0)):
+        for signs in np.ndindex(2, 2, 2):
+            R = np.zeros((3, 3), np.int64)
+            for row, col in enumerate(perm):
+                R[row, col] = 1 - 2 * signs[row]
+            out.append(R)
+    return out
+
+
+@functools.lru_cache(maxsize=2)
+def ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) -> np.ndarray:
+    """float32 (18, n_a, 18, 2): for a lobe HG_a about ordinate o's direction e_o (a =
+    linspace(-1, 1, n_a)), the share of it in ordinate n's part of the sphere (the directions
+    nearer to e_n than to any other of the 18, :data:`ORDINATES18`), and that share times its
+    mean cosine about e_n (kernels/ordinates18.py). The shares of a lobe sum to 1.
+
+    By quadrature over n_mu bands of cosine about the lobe's axis (each weighted by the lobe's
+    exact integral over it) times n_azimuth azimuths, for one face and one edge; the other ordinates follow by the cube's symmetries.
+    a = +-1 (a delta along +-e_o) is all in ordinate o (or its opposite), with mean cosine 1."""
+    axes = ORDINATES18 / np.linalg.norm(ORDINATES18, axis=1)[:, None]
+    edges = np.linspace(-1.0, 1.0, n_mu + 1)
+    mu = 0.5 * (edges[1:] + edges[:-1])
+    phi = (np.arange(n_azimuth) + 0.5) / n_azimuth * 2.0 * np.pi
+    a = np.linspace(-1.0, 1.0, n_a)
+    # each band of cosines weighted by HG_a's integral over it, exact however peaked the lobe:
+    # int (1 - a^2) (1 + a^2 - 2 a mu)^-3/2 dmu = (1 - a^2) / a (1 + a^2 - 2 a mu)^-1/2
+    inner = a[1:-1, None]
+    flat = np.abs(inner) < 1e-6
+    g = np.where(flat, 0.5, inner)
+    primitive = (1.0 - g ** 2) / g / np.sqrt(1.0 + g ** 2 - 2.0 * g * edges[None, :])
+    lobe = np.where(flat, np.diff(edges)[None, :], np.diff(primitive, axis=1))
+    table = np.zeros((18, n_a, 18, 2))
+    for c in (0, 6):                     # a face and an edge
+        e = axes[c]
+        p = np.cross(e, [0.0, 0.0, 1.0] if abs(e[2]) < 0.9 else [1.0, 0.0, 0.0])
+        p /= np.linalg.norm(p)
+        q = np.cross(e, p)
+        sin = np.sqrt(1.0 - mu ** 2)
+        dirs = (mu[:, None, None] * e + sin[:, None, None] * (np.cos(phi)[None, :, None] * p
+                                                               + np.sin(phi)[None, :, None] * q))
+        dots = np.einsum("mzk,nk->mzn", dirs, axes)
+        nearest = np.argmax(dots, axis=2)
+        own = np.take_along_axis(dots, nearest[..., None], axis=2)[..., 0]
+        index = (np.arange(n_mu)[:, None] * 18 + nearest).ravel()
+        frac = np.bincount(index, minlength=n_mu * 18).reshape(n_mu, 18) / n_azimuth
+        cos = np.bincount(index, own.ravel(), minlength=n_mu * 18).reshape(n_mu, 18) / n_azimuth
+        share = np.einsum("am,mn->an", lobe, frac)
+        moment = np.einsum("am,mn->an", lobe, cos)
+        total = share.sum(axis=1, keepdims=True)
+        table[c, 1:-1, :, 0] = share / total
+        table[c, 1:-1, :, 1] = moment / total
+        opposite = int(np.flatnonzero((ORDINATES18 == -ORDINATES18[c]).all(axis=1))[0])
+        table[c, -1, c] = (1.0, 1.0)
+        table[c, 0, opposite] = (1.0, 1.0)
+    index_of = {tuple(v): n for n, v in enumerate(ORDINATES18)}
+    rotations = _signed_permutations()
+    for o in range(18):
+        c = 0 if o < 6 else 6
+        R = next(R for R in rotations if (R @ ORDINATES18[c] == ORDINATES18[o]).all())
+        image = [index_of[tuple(R @ ORDINATES18[n])] for n in range(18)]
+        table[o][:, image] = table[c]
+    return table.astype(np.float32)
 
 
 def anisotropy_bins(n: int = ANISOTROPY_BINS) -> np.ndarray:
@@ -328,11 +417,51 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     return it, in_flight, absorbed, sent
 
 
+def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
+                     ) -> tuple[int, float, float, int]:
+    """The eighteen-ordinate walk (kernels/ordinates18.py) of :func:`walk_box`: as
+    :func:`walk_ordinates` with a direction per face and per edge of the lattice, visiting every
+    cell of a pending row. The injected light enters ordinate +d of slice 0; the sweeps
+    alternate +d / -d every sweep, the order along u every second and along v every fourth. The
+    rows are cut into GROUPS18 groups that sweep as a pipeline (:func:`row_groups`, by the
+    packets each row sent in the sweep before), whatever the number of threads. Returns
+    (sweeps, power in flight, power the injection's half step absorbed, packets sent);
+    accumulates into phi, flux (float32 (3,) + shape, the domain's frame) and tally."""
+    shape = Th.shape
+    n = int(np.prod(shape))
+    check_memory(2 * 18 * 4 * n + 4 * 3 * n, "experimental.ordinates (18) with method.resolution",
+                 f"the 18 ordinates of a {'x'.join(map(str, shape))} domain (power and moment)")
+    table = ordinate18_table()
+    root2 = np.float32(np.sqrt(2.0))
+    Th2, Dh2, Sh2 = (np.power(x, root2).astype(np.float32) for x in (Th, Dh, Sh))
+    W = np.zeros(shape + (18,), np.float32)
+    Wa = np.zeros_like(W)
+    # the injected light crosses half a cell to the first centres (a0 decayed by Dh there)
+    W[0, :, :, 0] = injection * Th[0]
+    Wa[0, :, :, 0] = W[0, :, :, 0] * np.float32(a0) * Dh[0]
+    pending = np.zeros(shape[:2], np.uint8)
+    pending[0] = 1
+    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+    injected = float(np.sum(injection, dtype=np.float64))
+    flat = W.reshape(shape[0] * shape[1], shape[2], 18)
+    row_work = np.zeros(shape[1])
+
+    def one_sweep(it, w_min):
+        edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, GROUPS18)
+        sent = KO18.ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, inv_area, phi, flux,
+                                      np.float32(w_min), it % 2 == 0, it % 4 < 2, it % 8 < 4, tally, pending, edges,
+                                      row_work)
+        return K.total_energy(flat), sent
+    in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n, injected,
+                                                progress)
+    return it, in_flight, absorbed, sent
+
+
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
              max_iterations: int = 0, periodic: bool = False, progress=None,
              handover: tuple[float, np.ndarray] | None = None, scatter: np.ndarray | None = None,
-             read: np.ndarray | None = None) -> WalkResult:
+             read: np.ndarray | None = None, ordinates: int = 6) -> WalkResult:
     """Walk light injected into slice k = 0 of a rectilinear domain until (almost) all of it
     has left.
 
@@ -365,6 +494,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             crosses the empty cells outside it without visiting them (:func:`skipped_cells`),
             so their phi and flux stay 0; None: every cell is visited. The other solvers
             ignore it.
+        ordinates: 6 or 18, the directions of the "ordinates" solver: the six faces of the
+            lattice (:func:`walk_ordinates`) or its faces and edges (:func:`walk_ordinates18`,
+            which visits every cell and ignores ``read``).
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -408,9 +540,13 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             raise ValueError("the six-ordinate walk needs scatter (walk.scatter_factor)")
         flux = np.zeros((3,) + shape, np.float32)
         Sh = np.ascontiguousarray(scatter, np.float32)
-        skip = skipped_cells(Th, Dh, Sh, read) if read is not None else None
-        it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
-                                                              tally, target, cap, progress, skip)
+        if ordinates == 18:
+            it, in_flight, budget.absorbed, sent = walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi,
+                                                                    flux, tally, target, cap, progress)
+        else:
+            skip = skipped_cells(Th, Dh, Sh, read) if read is not None else None
+            it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
+                                                                  tally, target, cap, progress, skip)
         phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,

@@ -138,7 +138,7 @@ class SunDomain(DirectionalDomain):
         scatter = scatter_factor(sigma_s, self.h) if method.solver == "ordinates" else None
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
                           method.tolerance, method.max_iterations, progress=progress, handover=handover,
-                          scatter=scatter, read=read)
+                          scatter=scatter, read=read, ordinates=method.ordinates)
         result.direct = self.direct_fluence(sigma_t)
         return result
 

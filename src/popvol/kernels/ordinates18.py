@@ -1,0 +1,203 @@
+"""Numba kernel of the eighteen-ordinate walk (docs/METHOD.md, "Eighteen ordinates";
+experimental.ordinates = 18): the six-ordinate walk of kernels/ordinates.py with a direction per
+face and per edge of the cube lattice.
+
+A cell holds one pending packet per ordinate o = 0..17, a lobe HG_a about its direction e_o
+(walk.ORDINATES18: the six faces +-d, +-u, +-v, then the twelve edges (+-1, +-1, 0) / sqrt 2 and
+their permutations, offsets in cells ``offs``):
+
+  W, Wa  float32 (n_d, n_u, n_v, 18): power [W] pending in ordinate o at the cell's centre
+         (after the receiver's half step), and power times the lobe's anisotropy about e_o.
+
+A packet crosses one transfer to the neighbour at offset offs[o], a path of L = h (a face) or
+sqrt(2) h (an edge), so every factor of a cell is taken to the power L / h: the half-step
+transmittance Th (absorption), no-scatter transmittance Sh and anisotropy decay Dh (``Th2``,
+``Sh2``, ``Dh2`` are those of an edge). As in the six-ordinate walk, the share S = Sh[s] Sh[c]
+crosses unscattered and keeps its lobe; the rest scatters, with the anisotropy a_s = a (D - S) /
+(1 - S) (D = Dh[s] Dh[c]: the whole's mean cosine decays as Eq. 12). The share 1 - Sh[s] of what
+is sent scatters in the sender's half of the way and leaves from the sender, the share Sh[s] (1 -
+Sh[c]) in the receiver's half and leaves from the receiver. Where it leaves from it is split by
+the partition of the sphere among the 18 directions (each direction takes the directions nearer
+to it than to any other: walk.ordinate18_table): the part that falls in ordinate n's cell of the
+sphere goes into ordinate n with that part's mean cosine about e_n. From the sender the parts go
+to its neighbours (offs[n]); from the receiver into its own ordinates at once. So light that
+scatters 45 degrees off its way goes on diagonally, not sideways at 90 degrees as with six
+ordinates.
+
+Fields (per unit area, accumulated at every visit, Eq. 14): phi float32 (n_d, n_u, n_v), the
+fluence (a visit adds W L / h^3: a packet on an edge crosses sqrt 2 h between centres), and F
+float32 (3, n_d, n_u, n_v), its first moment (the sum of W L a e_o / h^3) in the domain's frame.
+Tallies (float64 (4,)): reflected, transmitted, side escaped, absorbed.
+
+The sweep visits the cells in order of k, then i, then j (each increasing or decreasing), cell by
+cell in place (a Gauss-Seidel sweep), and only the rows marked ``pending`` (uint8 (n_d, n_u)):
+a row's mark is cleared when it is swept and set by every packet that arrives in it or stays
+pending there. Its rows are cut into groups that sweep as a pipeline: group g sweeps slice s
+while group g - 1 sweeps slice s + 3. A cell writes only into the slices next to its own, so
+the two groups' writes never meet (slices s - 1 .. s + 1 against s + 2 .. s + 4). What a group
+sends into the rows of the group ahead of it arrives after that group has swept them and waits
+for the next sweep. The cut is the callers' (walk.row_groups), not the thread count's, so the
+fields are the same bits on one thread or two.
+
+NumPy twin: tests/twins.py (ordinates18_sweep).
+"""
+import math
+
+import numba as nb
+import numpy as np
+
+from .reduction import add_parts
+
+#: ordinates of the eighteen-ordinate walk
+M18 = 18
+
+
+@nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
+def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, pending, k, i, j, scratch, g,
+          tallies):
+    """Cell (k, i, j) sends its packets above ``w_min`` (module docstring). Row g of
+    ``scratch`` (float64 (groups, 128)) is the caller's: what leaves for each neighbour (power,
+    then power times anisotropy) in columns 0-35 (indexed, not sliced: a view made per cell
+    costs every thread an atomic update of the array's reference count). ``tallies`` = (reflected, transmitted, side escaped, absorbed,
+    packets sent) so far; returns them updated."""
+    refl, trans, side_out, absorbed, sent_packets = tallies
+    n0, n1, n2 = Th.shape
+    na = table.shape[1]
+    sq2 = math.sqrt(2.0)
+    sending = False
+    for o in range(M18):
+        w = W[k, i, j, o]
+        if w <= w_min:
+            if w > 0.0 and pending[k, i] == 0:
+                pending[k, i] = 1
+            continue
+        if not sending:
+            scratch[g, 0:36] = 0.0
+            sending = True
+        wa = Wa[k, i, j, o]
+        W[k, i, j, o] = 0.0
+        Wa[k, i, j, o] = 0.0
+        sent_packets += 1
+        edge = o >= 6
+        L = sq2 if edge else 1.0
+        phi[k, i, j] += w * L * inv_area
+        # e_o = offs[o] / L, so W L a e_o = W a offs[o]
+        F[0, k, i, j] += wa * offs[o, 0] * inv_area
+        F[1, k, i, j] += wa * offs[o, 1] * inv_area
+        F[2, k, i, j] += wa * offs[o, 2] * inv_area
+        a = wa / w
+        if edge:
+            th, sh, dh = Th2[k, i, j], Sh2[k, i, j], Dh2[k, i, j]
+        else:
+            th, sh, dh = Th[k, i, j], Sh[k, i, j], Dh[k, i, j]
+        sent = w * th
+        absorbed += w - sent
+        k2, i2, j2 = k + offs[o, 0], i + offs[o, 1], j + offs[o, 2]
+        inside = 0 <= k2 < n0 and 0 <= i2 < n1 and 0 <= j2 < n2
+        shc = 1.0
+        D = dh
+        if inside:
+            shc = Sh2[k2, i2, j2] if edge else Sh[k2, i2, j2]
+            D = dh * (Dh2[k2, i2, j2] if edge else Dh[k2, i2, j2])
+        S = sh * shc
+        # the part that crosses unscattered keeps its lobe
+        scratch[g, o] += sent * S
+        scratch[g, M18 + o] += sent * S * a
+        if S >= 1.0:
+            continue
+        a_s = a * (D - S) / (1.0 - S)
+        x = min(max((a_s + 1.0) * 0.5 * (na - 1), 0.0), na - 1.0)
+        t = min(int(x), na - 2)
+        lam = x - t
+        # what scatters in the sender's half is split here, to the sender's neighbours; what
+        # scatters in the receiver's half crosses into the receiver (its half step) and is split
+        # there, into the receiver's own ordinates
+        es = sent * (1.0 - sh)
+        er = 0.0
+        if inside:
+            thc = Th2[k2, i2, j2] if edge else Th[k2, i2, j2]
+            er = sent * sh * (1.0 - shc)
+            absorbed += er * (1.0 - thc)
+            er *= thc
+            if pending[k2, i2] == 0:     # written once a sweep: the other group reads this line
+                pending[k2, i2] = 1
+        for n in range(M18):
+            s0 = table[o, t, n, 0]
+            m0 = table[o, t, n, 1]
+            share = s0 + lam * (table[o, t + 1, n, 0] - s0)
+            moment = m0 + lam * (table[o, t + 1, n, 1] - m0)
+            scratch[g, n] += es * share
+            scratch[g, M18 + n] += es * moment
+            if inside:
+                W[k2, i2, j2, n] += er * share
+                Wa[k2, i2, j2, n] += er * moment
+    if sending:
+        # what leaves for each neighbour, after the neighbour's half step
+        for n in range(M18):
+            e = scratch[g, n]
+            if e <= 0.0:
+                continue
+            k3, i3, j3 = k + offs[n, 0], i + offs[n, 1], j + offs[n, 2]
+            if k3 < 0:
+                refl += e
+            elif k3 >= n0:
+                trans += e
+            elif i3 < 0 or i3 >= n1 or j3 < 0 or j3 >= n2:
+                side_out += e
+            else:
+                th3 = Th2[k3, i3, j3] if n >= 6 else Th[k3, i3, j3]
+                absorbed += e * (1.0 - th3)
+                W[k3, i3, j3, n] += e * th3
+                Wa[k3, i3, j3, n] += scratch[g, M18 + n] * th3
+                if pending[k3, i3] == 0:
+                    pending[k3, i3] = 1
+    return refl, trans, side_out, absorbed, sent_packets
+
+
+#: slices between the pipeline's groups (module docstring)
+LAG = 3
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, forward_d,
+                      forward_u, forward_v, tally, pending, edges, row_work):
+    """One Gauss-Seidel sweep (module docstring): at each cell of a pending row, ordinate by
+    ordinate, a packet above ``w_min`` is taken, its visit accumulated into (phi, F) and sent;
+    packets at or below it stay pending. ``table`` float32 (18, n_a, 18, 2): for a lobe HG_a about
+    e_o at a = linspace(-1, 1, n_a), the share that falls in ordinate n's part of the sphere and
+    that share times its mean cosine about e_n (walk.ordinate18_table); interpolated linearly in
+    a. ``offs`` int64 (18, 3). ``edges`` int64 (groups + 1,): the groups' rows, as positions in
+    the sweep's order from 0 to n_u (one group: row by row). ``row_work`` float64 (n_u,)
+    receives the packets each row sent, for the next sweep's cut. Returns the number of packets
+    sent."""
+    n0, n1, n2 = Th.shape
+    groups = edges.shape[0] - 1
+    # each group's scratch (_send's) in a row of its own, 1 kB apart: no two groups share a cache
+    # line
+    scratch = np.zeros((groups, 128))
+    part = np.zeros((5, n0 * n1))
+    for step in range(n0 + LAG * (groups - 1)):
+        for g in nb.prange(groups):
+            s = step - LAG * g
+            if s >= 0 and s < n0:
+                k = s if forward_d else n0 - 1 - s
+                for r in range(edges[g], edges[g + 1]):
+                    i = r if forward_u else n1 - 1 - r
+                    if pending[k, i] == 0:
+                        continue
+                    pending[k, i] = 0
+                    t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
+                    for jj in range(n2):
+                        j = jj if forward_v else n2 - 1 - jj
+                        t = _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, pending,
+                                  k, i, j, scratch, g, t)
+                    row = k * n1 + i
+                    part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
+                    part[4, row] = t[4]
+    add_parts(part[:4], tally)
+    sent = 0
+    row_work[:] = 0.0
+    for c in range(n0 * n1):
+        sent += np.int64(part[4, c])
+        row_work[c % n1] += part[4, c]
+    return sent

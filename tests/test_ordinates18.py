@@ -1,0 +1,178 @@
+"""The eighteen-ordinate walk (experimental.ordinates = 18; kernels/ordinates18.py): its
+partition table against an independent quadrature, its kernel against the slow twin of
+tests/twins.py, its energy balance, and its light against Monte Carlo: a narrow beam in a thick
+cube (tests/montecarlo.py's 3-D walk) and a front-lit slab (the plane-parallel walk)."""
+import numpy as np
+import pytest
+
+import popvol
+from popvol.kernels.ordinates18 import ordinates18_sweep
+from popvol.scene import apply_overrides
+from popvol.walk import (ORDINATES18, medium_factors, ordinate18_table, scatter_factor, walk_box)
+import twins
+
+
+def table_at(table, o, a):
+    """The kernel's interpolation of ``table`` at anisotropy a: (shares, mean cosines)."""
+    na = table.shape[1]
+    x = (a + 1.0) * 0.5 * (na - 1)
+    t = min(int(x), na - 2)
+    lam = x - t
+    row = (1 - lam) * table[o, t].astype(np.float64) + lam * table[o, t + 1]
+    share = row[:, 0]
+    return share, np.divide(row[:, 1], share, out=np.zeros(18), where=share > 1e-12)
+
+
+@pytest.mark.parametrize("o", [0, 3, 6, 13])
+@pytest.mark.parametrize("a", [-0.6, 0.0, 0.5, 0.85, 0.95])
+def test_partition_table_matches_an_independent_quadrature(o, a):
+    """walk.ordinate18_table (bands of cosine about one face and one edge, the rest by the cube's
+    symmetries) against a Fibonacci spiral of 400,000 directions over the whole sphere with the
+    exact HG density, for faces and edges: every share within 5e-4, every part's mean cosine
+    within 2e-3 where its share is above 1e-3; the shares sum to 1."""
+    share, mean = table_at(ordinate18_table(), o, a)
+    ref_share, ref_mean = twins.lattice18_partition(a, o, n_points=400_000)
+    assert share.sum() == pytest.approx(1.0, abs=1e-5)
+    np.testing.assert_allclose(share, ref_share, atol=5e-4)
+    big = ref_share > 1e-3
+    np.testing.assert_allclose(mean[big], ref_mean[big], atol=2e-3)
+
+
+def test_partition_of_isotropic_light_follows_the_solid_angles():
+    """An isotropic lobe (a = 0) splits by the solid angles of the ordinates' cells of the
+    sphere: the six faces alike and the twelve edges alike (within the quadrature's 1e-3: the
+    lobe's own axis is the quadrature's pole), all 4 pi between them, and an edge's cell larger
+    than a face's (its direction is the nearest one for the cube's corners too)."""
+    share, _ = table_at(ordinate18_table(), 0, 0.0)
+    np.testing.assert_allclose(share[:6], share[0], rtol=1e-3)
+    np.testing.assert_allclose(share[6:], share[6], rtol=1e-3)
+    assert share.sum() == pytest.approx(1.0, abs=1e-5)
+    assert share[6] > share[0]
+
+
+def small_domain(seed=0, shape=(4, 3, 4)):
+    """Th, Dh, Sh of a small heterogeneous domain with empty cells (float32) and its cell size."""
+    rng = np.random.default_rng(seed)
+    h = 0.1
+    sigma_t = rng.uniform(0.5, 12.0, shape).astype(np.float32)
+    sigma_t[rng.random(shape) < 0.25] = 0.0
+    sigma_s = (0.9 * sigma_t).astype(np.float32)
+    g = rng.uniform(0.3, 0.9, shape).astype(np.float32)
+    Th, Dh = medium_factors(sigma_t, sigma_s, g, h, "poisson")
+    return Th, Dh, scatter_factor(sigma_s, h), h
+
+
+def test_kernel_matches_its_twin():
+    """Row by row (one group), two sweeps (the second in the other direction along every axis, w_min = 0 so that every
+    packet is sent) of a small heterogeneous domain with packets of assorted anisotropy in every
+    ordinate: the kernel (float32, the interpolated table) and the twin (float64, each packet's
+    own quadrature of 60,000 directions, good to about 1e-3) give the same pending state, fields
+    and tallies within 3e-3 of their largest values (measured: 2e-3 at most; a packet sent to
+    the wrong cell or ordinate would be off by its whole size)."""
+    Th, Dh, Sh, h = small_domain()
+    rng = np.random.default_rng(1)
+    shape = Th.shape
+    W0 = rng.uniform(0.0, 1.0, shape + (18,)).astype(np.float32)
+    W0[rng.random(W0.shape) < 0.5] = 0.0
+    Wa0 = (W0 * rng.uniform(-0.5, 0.95, W0.shape)).astype(np.float32)
+    inv_area = 1.0 / (h * h)
+    table = ordinate18_table()
+    root2 = np.float32(np.sqrt(2.0))
+    Th2, Dh2, Sh2 = (np.power(x, root2).astype(np.float32) for x in (Th, Dh, Sh))
+    W, Wa = W0.copy(), Wa0.copy()
+    phi, F, tally = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32), np.zeros(4)
+    pending = np.ones(shape[:2], np.uint8)
+    tW, tWa = W0.astype(np.float64), Wa0.astype(np.float64)
+    tphi, tF, ttally = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
+    for forward in (True, False):
+        sent = ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, np.float32(inv_area), phi,
+                                 F, np.float32(0.0), forward, forward, forward, tally, pending,
+                                 np.array([0, shape[1]]), np.zeros(shape[1]))
+        twin_sent = twins.ordinates18_sweep(tW, tWa, Th, Sh, Dh, inv_area, tphi, tF, 0.0, forward, forward,
+                                            forward, ttally)
+        assert sent == twin_sent
+    for got, want in ((W, tW), (Wa, tWa), (phi, tphi), (F, tF), (tally, ttally)):
+        np.testing.assert_allclose(got, want, atol=3e-3 * np.abs(want).max())
+
+
+def test_energy_balance():
+    """Walked to a tolerance of 1e-6 through a heterogeneous domain, the light injected is the
+    light reflected, transmitted, escaped sideways, absorbed and still in flight, to 1e-6."""
+    rng = np.random.default_rng(2)
+    shape, h = (12, 9, 10), 0.05
+    sigma_t = rng.uniform(0.0, 20.0, shape).astype(np.float32)
+    sigma_s = (0.95 * sigma_t).astype(np.float32)
+    Th, Dh = medium_factors(sigma_t, sigma_s, np.full(shape, 0.8, np.float32), h, "poisson")
+    injection = np.full(shape[1:], h * h, np.float32)
+    r = walk_box(Th, Dh, injection, 1.0, h, solver="ordinates", tolerance=1e-6, scatter=scatter_factor(sigma_s, h),
+                 ordinates=18)
+    b = r.budget
+    assert r.converged
+    assert b.reflected + b.transmitted + b.side + b.absorbed + b.in_flight == pytest.approx(b.injected, rel=1e-6)
+    assert b.reflected > 0 and b.transmitted > 0 and b.side > 0
+
+
+def test_narrow_beam_matches_monte_carlo():
+    """A narrow beam in a thick cube (tests/test_beam.py's: optical depth 10, albedo 0.99, g 0.8)
+    at 16^3 and 32^3 cells against the 3-D Monte Carlo: the light escaping through the sides
+    within 3 % (measured 0.566 / 0.564 against 0.560), the fluence's mean squared distance from
+    the beam's axis within 5 % (0.074 against 0.0742; six ordinates 0.064), the absorbed light
+    within 8 % (0.104 / 0.105 against 0.101), and what the far face transmits and the lit face
+    reflects within 16 % (0.134 / 0.132 against 0.154; 0.196 / 0.200 against 0.185): light
+    scattered 45 degrees off the beam goes on diagonally, so it spreads as it should, but each
+    part of the sphere keeps only its mean cosine about its own direction."""
+    from montecarlo import cube_beam_mc
+    from test_beam import ALBEDO, G, HALFWIDTH, TAU, pop_beam
+    mc = cube_beam_mc(TAU, ALBEDO, G, HALFWIDTH, n_photons=100_000, seed=3)
+    for n in (16, 32):
+        r = pop_beam(n, solver="ordinates", ordinates=18)
+        assert r["side"] == pytest.approx(mc["side"], rel=0.03), n
+        assert r["r2_mean"] == pytest.approx(mc["r2_mean"], rel=0.05), n
+        assert r["absorbed"] == pytest.approx(mc["absorbed"], rel=0.08), n
+        assert r["transmitted"] == pytest.approx(mc["transmitted"], rel=0.16), n
+        assert r["reflected"] == pytest.approx(mc["reflected"], rel=0.16), n
+
+
+@pytest.mark.parametrize("tau_voxel", [0.25, 1.0])
+def test_reflection_of_a_slab_matches_monte_carlo(tau_voxel):
+    """The front-lit slab of tests/test_dense_slab.py (albedo 0.9, g 0.5, the sun behind the
+    camera), its whole reflection with the gathered last bounce at 16 and 32 cells within 7 %
+    of the plane-parallel Monte Carlo (measured x0.94 / x0.95 at 0.25 mean free paths per voxel
+    and x0.97 / x1.00 at 1)."""
+    from montecarlo import half_space_mc
+    from slab import ALBEDO, G, LIGHT, VIEW, centre_radiance, slab_depth, slab_scene
+    mc = half_space_mc(LIGHT, VIEW, ALBEDO, G, depth=slab_depth(tau_voxel), n_photons=200_000)
+    for resolution in (16, 32):
+        scene = apply_overrides(slab_scene(tau_voxel, resolution), ordinates=18)
+        total = centre_radiance(popvol.render(scene, popvol.solve(scene), jitter=False))
+        assert total == pytest.approx(mc["total"], rel=0.07, abs=3 * mc["stderr_total"]), resolution
+
+
+def test_fields_do_not_depend_on_the_thread_count():
+    """The sweep's rows are cut into walk.GROUPS18 groups, however many threads run them: the
+    same walk on one thread and on two gives the same fields to the bit."""
+    import numba
+    rng = np.random.default_rng(4)
+    shape, h = (14, 12, 10), 0.05
+    sigma_t = rng.uniform(0.0, 20.0, shape).astype(np.float32)
+    sigma_s = (0.95 * sigma_t).astype(np.float32)
+    Th, Dh = medium_factors(sigma_t, sigma_s, np.full(shape, 0.8, np.float32), h, "poisson")
+    injection = np.full(shape[1:], h * h, np.float32)
+    before = numba.get_num_threads()
+    fields = []
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            r = walk_box(Th, Dh, injection, 1.0, h, solver="ordinates", tolerance=1e-4,
+                         scatter=scatter_factor(sigma_s, h), ordinates=18)
+            fields.append((r.phi.copy(), r.flux.copy()))
+    finally:
+        numba.set_num_threads(before)
+    assert np.array_equal(fields[0][0], fields[1][0]) and np.array_equal(fields[0][1], fields[1][1])
+
+
+def test_other_counts_of_ordinates_are_refused():
+    """experimental.ordinates takes 6 or 18: anything else is a one-line error naming the key."""
+    with pytest.raises(popvol.PopvolError, match=r"experimental\.ordinates = 12 must be 6 or 18") as e:
+        popvol.load_scene(None, ordinates=12)
+    assert "\n" not in str(e.value)
