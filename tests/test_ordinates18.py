@@ -95,17 +95,22 @@ def test_kernel_matches_its_twin():
         np.testing.assert_allclose(got, want, atol=3e-3 * np.abs(want).max())
 
 
-def test_energy_balance():
-    """Walked to a tolerance of 1e-6 through a heterogeneous domain, the light injected is the
-    light reflected, transmitted, escaped sideways, absorbed and still in flight, to 1e-6."""
-    rng = np.random.default_rng(2)
-    shape, h = (12, 9, 10), 0.05
+def random_domain(seed, shape, h=0.05):
+    """Th, Dh, Sh (float32) of a heterogeneous domain (sigma_t uniform in [0, 20], albedo 0.95,
+    g 0.8) and the injection of unit irradiance into its slice 0."""
+    rng = np.random.default_rng(seed)
     sigma_t = rng.uniform(0.0, 20.0, shape).astype(np.float32)
     sigma_s = (0.95 * sigma_t).astype(np.float32)
     Th, Dh = medium_factors(sigma_t, sigma_s, np.full(shape, 0.8, np.float32), h, "poisson")
-    injection = np.full(shape[1:], h * h, np.float32)
-    r = walk_box(Th, Dh, injection, 1.0, h, solver="ordinates", tolerance=1e-6, scatter=scatter_factor(sigma_s, h),
-                 ordinates=18)
+    return Th, Dh, scatter_factor(sigma_s, h), np.full(shape[1:], h * h, np.float32)
+
+
+def test_energy_balance():
+    """Walked to a tolerance of 1e-6 through a heterogeneous domain, the light injected is the
+    light reflected, transmitted, escaped sideways, absorbed and still in flight, to 1e-6."""
+    h = 0.05
+    Th, Dh, Sh, injection = random_domain(2, (12, 9, 10), h)
+    r = walk_box(Th, Dh, injection, 1.0, h, solver="ordinates", tolerance=1e-6, scatter=Sh, ordinates=18)
     b = r.budget
     assert r.converged
     assert b.reflected + b.transmitted + b.side + b.absorbed + b.in_flight == pytest.approx(b.injected, rel=1e-6)
@@ -152,19 +157,14 @@ def test_fields_do_not_depend_on_the_thread_count():
     """The sweep's rows are cut into walk.GROUPS18 groups, however many threads run them: the
     same walk on one thread and on two gives the same fields to the bit."""
     import numba
-    rng = np.random.default_rng(4)
-    shape, h = (14, 12, 10), 0.05
-    sigma_t = rng.uniform(0.0, 20.0, shape).astype(np.float32)
-    sigma_s = (0.95 * sigma_t).astype(np.float32)
-    Th, Dh = medium_factors(sigma_t, sigma_s, np.full(shape, 0.8, np.float32), h, "poisson")
-    injection = np.full(shape[1:], h * h, np.float32)
+    h = 0.05
+    Th, Dh, Sh, injection = random_domain(4, (14, 12, 10), h)
     before = numba.get_num_threads()
     fields = []
     try:
         for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
             numba.set_num_threads(threads)
-            r = walk_box(Th, Dh, injection, 1.0, h, solver="ordinates", tolerance=1e-4,
-                         scatter=scatter_factor(sigma_s, h), ordinates=18)
+            r = walk_box(Th, Dh, injection, 1.0, h, solver="ordinates", tolerance=1e-4, scatter=Sh, ordinates=18)
             fields.append((r.phi.copy(), r.flux.copy()))
     finally:
         numba.set_num_threads(before)

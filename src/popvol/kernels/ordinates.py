@@ -59,7 +59,7 @@ import numpy as np
 from . import ON_ITS_OWN
 from .cells import cell_along, face_neighbour
 from .propagation import ABSORBED, REFLECTED, SIDE_ESCAPED, TRANSMITTED
-from .reduction import add_parts
+from .reduction import add_row_parts
 
 #: columns of the ordinates' table (walk.ordinate_table): front share, side share (each),
 #: back share, the three parts' conditional mean cosines about e_o, and the side wedge's mean
@@ -276,10 +276,4 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
-    add_parts(part[:4], tally)
-    sent = 0
-    row_work[:] = 0.0
-    for c in range(n0 * n1):
-        sent += np.int64(part[4, c])
-        row_work[c % n1] += part[4, c]
-    return sent
+    return add_row_parts(part, tally, row_work)

@@ -46,7 +46,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .reduction import add_parts
+from .reduction import add_row_parts
 
 #: ordinates of the eighteen-ordinate walk
 M18 = 18
@@ -194,10 +194,4 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
-    add_parts(part[:4], tally)
-    sent = 0
-    row_work[:] = 0.0
-    for c in range(n0 * n1):
-        sent += np.int64(part[4, c])
-        row_work[c % n1] += part[4, c]
-    return sent
+    return add_row_parts(part, tally, row_work)

@@ -18,6 +18,7 @@ a fixed order: the order is in the code, not left to the compiler. The kernels t
 cached, with it.
 """
 import numba as nb
+import numpy as np
 
 
 @nb.njit(fastmath=False, cache=True, nogil=True)
@@ -34,6 +35,22 @@ def add_parts(part, tally):
     """tally[c] += the ordered sum of row c of ``part`` (per-slice partial sums), for every c."""
     for c in range(part.shape[0]):
         tally[c] += ordered_sum(part[c])
+
+
+@nb.njit(fastmath=False, cache=True, nogil=True)
+def add_row_parts(part, tally, row_work):
+    """A sweep's per-row tallies ``part`` float64 (5, n_d * n_u), row k * n_u + i: the four
+    tallies added to ``tally`` (:func:`add_parts`), and the packets each row sent (part[4]) summed
+    over k into ``row_work`` float64 (n_u,) (overwritten), for the next sweep's cut. Returns the
+    packets sent."""
+    add_parts(part[:4], tally)
+    n1 = row_work.shape[0]
+    sent = 0
+    row_work[:] = 0.0
+    for c in range(part.shape[1]):
+        sent += np.int64(part[4, c])
+        row_work[c % n1] += part[4, c]
+    return sent
 
 
 #: partial sums per row in :func:`row_dot` and :func:`row_sum` (independent chains that the
