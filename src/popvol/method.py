@@ -128,8 +128,8 @@ KNOBS: tuple[Knob, ...] = (
     Knob("ordinates", 6, (6, 18), "Directions of `solver = \"ordinates\"`: 6 or 18.",
          "6: one lobe per face of the lattice (+-d, +-u, +-v). 18: one per face and per edge, so "
          "that light scattered 45 degrees off its way goes on diagonally instead of sideways "
-         "(docs/METHOD.md, \"Eighteen ordinates\"): closer to Mitsuba on sunlit clouds, about 3 "
-         "times the packets to walk.", experimental=True, allowed_text="6 or 18"),
+         "(docs/METHOD.md, \"Eighteen ordinates\"): closer to Mitsuba on sunlit clouds, 2-3 "
+         "times as long to walk.", experimental=True, allowed_text="6 or 18"),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
          "(the paper's rule, with a one-lobe `solver` only).", experimental=True),

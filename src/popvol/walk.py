@@ -417,40 +417,59 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     return it, in_flight, absorbed, sent
 
 
-def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None
-                     ) -> tuple[int, float, float, int]:
+def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
+                     skip=None) -> tuple[int, float, float, int]:
     """The eighteen-ordinate walk (kernels/ordinates18.py) of :func:`walk_box`: as
     :func:`walk_ordinates` with a direction per face and per edge of the lattice, visiting every
-    cell of a pending row. The injected light enters ordinate +d of slice 0; the sweeps
+    cell of a pending row that is not skipped. The injected light enters ordinate +d of slice 0; the sweeps
     alternate +d / -d every sweep, the order along u every second and along v every fourth. The
     rows are cut into GROUPS18 groups that sweep as a pipeline (:func:`row_groups`, by the
     packets each row sent in the sweep before), whatever the number of threads. Returns
     (sweeps, power in flight, power the injection's half step absorbed, packets sent);
-    accumulates into phi, flux (float32 (3,) + shape, the domain's frame) and tally."""
+    accumulates into phi, flux (float32 (3,) + shape, the domain's frame) and tally, except in
+    the ``skip`` cells (:func:`skipped_cells`; None: none), which hold no packet and which light
+    crosses along its ordinate without a visit. The pending state W, Wa is float32 (m, 18), one
+    row per cell not skipped (its index in ``cell``, int32, the domain's shape, -1 where
+    skipped)."""
     shape = Th.shape
     n = int(np.prod(shape))
-    check_memory(2 * 18 * 4 * n + 4 * 3 * n, "experimental.ordinates (18) with method.resolution",
+    kept = np.ones(shape, np.bool_) if skip is None else ~np.asarray(skip, np.bool_)
+    m = int(np.count_nonzero(kept))
+    held = 4 * m if skip is not None and skip.any() else 1     # parts held to a sweep's end
+    check_memory(2 * 18 * 4 * m + 4 * 3 * n + 4 * n + GROUPS18 * held * 40,
+                 "experimental.ordinates (18) with method.resolution",
                  f"the 18 ordinates of a {'x'.join(map(str, shape))} domain (power and moment)")
+    cell = np.full(shape, -1, np.int32)
+    cell[kept] = np.arange(m, dtype=np.int32)
     table = ordinate18_table()
     root2 = np.float32(np.sqrt(2.0))
     Th2, Dh2, Sh2 = (np.power(x, root2).astype(np.float32) for x in (Th, Dh, Sh))
-    W = np.zeros(shape + (18,), np.float32)
+    W = np.zeros((m, 18), np.float32)
     Wa = np.zeros_like(W)
-    # the injected light crosses half a cell to the first centres (a0 decayed by Dh there)
-    W[0, :, :, 0] = injection * Th[0]
-    Wa[0, :, :, 0] = W[0, :, :, 0] * np.float32(a0) * Dh[0]
     pending = np.zeros(shape[:2], np.uint8)
-    pending[0] = 1
+    # the injected light crosses half a cell to the first centres (a0 decayed by Dh there): in
+    # slice 0, or, where a column starts with skipped cells, in the cell after them
+    first = np.argmax(kept, axis=0)                    # the first kept cell of each column along d
+    ahead = kept.any(axis=0)
+    I, J = np.nonzero(ahead)
+    k1 = first[ahead]
+    c = cell[k1, I, J]
+    W[c, 0] = injection[ahead] * Th[k1, I, J]
+    Wa[c, 0] = W[c, 0] * np.float32(a0) * Dh[k1, I, J]
+    pending[k1, I] = 1
+    tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
     absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
     injected = float(np.sum(injection, dtype=np.float64))
-    flat = W.reshape(shape[0] * shape[1], shape[2], 18)
+    flat = W.reshape(m, 1, 18)
     row_work = np.zeros(shape[1])
+    held_at = np.zeros((GROUPS18, held, 3), np.int64)
+    held_parts = np.zeros((GROUPS18, held, 2))
 
     def one_sweep(it, w_min):
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, GROUPS18)
         sent = KO18.ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, inv_area, phi, flux,
-                                      np.float32(w_min), it % 2 == 0, it % 4 < 2, it % 8 < 4, tally, pending, edges,
-                                      row_work)
+                                      np.float32(w_min), it % 2 == 0, it % 4 < 2, it % 8 < 4, tally, cell, pending,
+                                      edges, row_work, held_at, held_parts)
         return K.total_energy(flat), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n, injected,
                                                 progress)
@@ -495,8 +514,7 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             so their phi and flux stay 0; None: every cell is visited. The other solvers
             ignore it.
         ordinates: 6 or 18, the directions of the "ordinates" solver: the six faces of the
-            lattice (:func:`walk_ordinates`) or its faces and edges (:func:`walk_ordinates18`,
-            which visits every cell and ignores ``read``).
+            lattice (:func:`walk_ordinates`) or its faces and edges (:func:`walk_ordinates18`).
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -540,11 +558,11 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             raise ValueError("the six-ordinate walk needs scatter (walk.scatter_factor)")
         flux = np.zeros((3,) + shape, np.float32)
         Sh = np.ascontiguousarray(scatter, np.float32)
+        skip = skipped_cells(Th, Dh, Sh, read) if read is not None else None
         if ordinates == 18:
             it, in_flight, budget.absorbed, sent = walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi,
-                                                                    flux, tally, target, cap, progress)
+                                                                    flux, tally, target, cap, progress, skip)
         else:
-            skip = skipped_cells(Th, Dh, Sh, read) if read is not None else None
             it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
                                                                   tally, target, cap, progress, skip)
         phia = flux[0]

@@ -6,8 +6,10 @@ A cell holds one pending packet per ordinate o = 0..17, a lobe HG_a about its di
 (walk.ORDINATES18: the six faces +-d, +-u, +-v, then the twelve edges (+-1, +-1, 0) / sqrt 2 and
 their permutations, offsets in cells ``offs``):
 
-  W, Wa  float32 (n_d, n_u, n_v, 18): power [W] pending in ordinate o at the cell's centre
-         (after the receiver's half step), and power times the lobe's anisotropy about e_o.
+  W, Wa  float32 (m, 18): power [W] pending in ordinate o at the centre of each cell that is
+         not skipped (below; cell (k, i, j) at row cell[k, i, j], int32 (n_d, n_u, n_v), -1
+         where skipped), after the receiver's half step, and power times the lobe's anisotropy
+         about e_o.
 
 A packet crosses one transfer to the neighbour at offset offs[o], a path of L = h (a face) or
 sqrt(2) h (an edge), so every factor of a cell is taken to the power L / h: the half-step
@@ -39,6 +41,16 @@ sends into the rows of the group ahead of it arrives after that group has swept 
 for the next sweep. The cut is the callers' (walk.row_groups), not the thread count's, so the
 fields are the same bits on one thread or two.
 
+Empty space (docs/METHOD.md, "Skipping empty space", as the six-ordinate walk's): a skipped
+cell (empty, with no medium among its 26 neighbours, its fields read by no one:
+walk.skipped_cells) holds no packet and has no row in W. A part sent into one goes on along its
+ordinate, unchanged, across the run of skipped cells to the cell after it or out of the domain;
+their phi and F stay 0. A part that crosses such a run along an edge of the (d, u) plane lands
+in another slice and may land in the other group's rows, in the slice that group is sweeping:
+so it is held, with the group's other such parts, and delivered after the sweep, the groups'
+held parts in the order of the groups (it then waits for the next sweep, as it would if it had
+landed behind the sweep). So the bits stay those of the groups, whatever the threads.
+
 NumPy twin: tests/twins.py (ordinates18_sweep).
 """
 import math
@@ -52,21 +64,41 @@ from .reduction import add_row_parts
 M18 = 18
 
 
+@nb.njit(inline="always", cache=True)
+def _landing(cell, offs, n, k, i, j):
+    """The cell a part sent along ordinate n from a neighbour (k, i, j) of it lands in: (k, i,
+    j) itself, or, where that is skipped, the first cell not skipped along offs[n] after it, or
+    the first position outside the domain."""
+    n0, n1, n2 = cell.shape
+    while 0 <= k < n0 and 0 <= i < n1 and 0 <= j < n2 and cell[k, i, j] < 0:
+        k += offs[n, 0]
+        i += offs[n, 1]
+        j += offs[n, 2]
+    return k, i, j
+
+
 @nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
-def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, pending, k, i, j, scratch, g,
-          tallies):
+def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell, pending, k, i, j, scratch,
+          g, held_at, held, tallies):
     """Cell (k, i, j) sends its packets above ``w_min`` (module docstring). Row g of
     ``scratch`` (float64 (groups, 128)) is the caller's: what leaves for each neighbour (power,
     then power times anisotropy) in columns 0-35 (indexed, not sliced: a view made per cell
-    costs every thread an atomic update of the array's reference count). ``tallies`` = (reflected, transmitted, side escaped, absorbed,
-    packets sent) so far; returns them updated."""
+    costs every thread an atomic update of the array's reference count), and in column 100 the
+    number of parts it holds (module docstring) in ``held_at`` (int64 (groups, capacity, 3): the
+    landing cell's row of W, the ordinate, the landing row k n_u + i) and ``held`` (float64
+    (groups, capacity, 2): power and power times anisotropy, after the landing cell's half step).
+    ``tallies`` = (reflected, transmitted, side escaped, absorbed, packets sent) so far; returns
+    them updated. A skipped cell (``cell`` < 0) holds none."""
+    c = cell[k, i, j]
+    if c < 0:
+        return tallies
     refl, trans, side_out, absorbed, sent_packets = tallies
     n0, n1, n2 = Th.shape
     na = table.shape[1]
     sq2 = math.sqrt(2.0)
     sending = False
     for o in range(M18):
-        w = W[k, i, j, o]
+        w = W[c, o]
         if w <= w_min:
             if w > 0.0 and pending[k, i] == 0:
                 pending[k, i] = 1
@@ -74,9 +106,9 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
         if not sending:
             scratch[g, 0:36] = 0.0
             sending = True
-        wa = Wa[k, i, j, o]
-        W[k, i, j, o] = 0.0
-        Wa[k, i, j, o] = 0.0
+        wa = Wa[c, o]
+        W[c, o] = 0.0
+        Wa[c, o] = 0.0
         sent_packets += 1
         edge = o >= 6
         L = sq2 if edge else 1.0
@@ -114,7 +146,9 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
         # there, into the receiver's own ordinates
         es = sent * (1.0 - sh)
         er = 0.0
-        if inside:
+        c2 = -1
+        if inside and shc < 1.0:         # the receiver holds medium, so it is not skipped
+            c2 = cell[k2, i2, j2]
             thc = Th2[k2, i2, j2] if edge else Th[k2, i2, j2]
             er = sent * sh * (1.0 - shc)
             absorbed += er * (1.0 - thc)
@@ -128,16 +162,16 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
             moment = m0 + lam * (table[o, t + 1, n, 1] - m0)
             scratch[g, n] += es * share
             scratch[g, M18 + n] += es * moment
-            if inside:
-                W[k2, i2, j2, n] += er * share
-                Wa[k2, i2, j2, n] += er * moment
+            if c2 >= 0:
+                W[c2, n] += er * share
+                Wa[c2, n] += er * moment
     if sending:
         # what leaves for each neighbour, after the neighbour's half step
         for n in range(M18):
             e = scratch[g, n]
             if e <= 0.0:
                 continue
-            k3, i3, j3 = k + offs[n, 0], i + offs[n, 1], j + offs[n, 2]
+            k3, i3, j3 = _landing(cell, offs, n, k + offs[n, 0], i + offs[n, 1], j + offs[n, 2])
             if k3 < 0:
                 refl += e
             elif k3 >= n0:
@@ -147,10 +181,21 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
             else:
                 th3 = Th2[k3, i3, j3] if n >= 6 else Th[k3, i3, j3]
                 absorbed += e * (1.0 - th3)
-                W[k3, i3, j3, n] += e * th3
-                Wa[k3, i3, j3, n] += scratch[g, M18 + n] * th3
-                if pending[k3, i3] == 0:
-                    pending[k3, i3] = 1
+                c3 = cell[k3, i3, j3]
+                if offs[n, 0] != 0 and offs[n, 1] != 0 and k3 != k + offs[n, 0]:
+                    # across skipped cells along a (d, u) edge: held until the sweep's end
+                    q = np.int64(scratch[g, 100])
+                    held_at[g, q, 0] = c3
+                    held_at[g, q, 1] = n
+                    held_at[g, q, 2] = k3 * n1 + i3
+                    held[g, q, 0] = e * th3
+                    held[g, q, 1] = scratch[g, M18 + n] * th3
+                    scratch[g, 100] += 1.0
+                else:
+                    W[c3, n] += e * th3
+                    Wa[c3, n] += scratch[g, M18 + n] * th3
+                    if pending[k3, i3] == 0:
+                        pending[k3, i3] = 1
     return refl, trans, side_out, absorbed, sent_packets
 
 
@@ -160,16 +205,18 @@ LAG = 3
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, forward_d,
-                      forward_u, forward_v, tally, pending, edges, row_work):
+                      forward_u, forward_v, tally, cell, pending, edges, row_work, held_at, held):
     """One Gauss-Seidel sweep (module docstring): at each cell of a pending row, ordinate by
     ordinate, a packet above ``w_min`` is taken, its visit accumulated into (phi, F) and sent;
     packets at or below it stay pending. ``table`` float32 (18, n_a, 18, 2): for a lobe HG_a about
     e_o at a = linspace(-1, 1, n_a), the share that falls in ordinate n's part of the sphere and
     that share times its mean cosine about e_n (walk.ordinate18_table); interpolated linearly in
-    a. ``offs`` int64 (18, 3). ``edges`` int64 (groups + 1,): the groups' rows, as positions in
+    a. ``offs`` int64 (18, 3). ``cell``: each cell's row of W, -1 where skipped. ``edges`` int64 (groups + 1,): the groups' rows, as positions in
     the sweep's order from 0 to n_u (one group: row by row). ``row_work`` float64 (n_u,)
-    receives the packets each row sent, for the next sweep's cut. Returns the number of packets
-    sent."""
+    receives the packets each row sent, for the next sweep's cut. ``held_at`` int64 (groups,
+    capacity, 3) and ``held`` float64 (groups, capacity, 2): room for the parts held to the
+    sweep's end (module docstring; capacity 4 m is enough: at most one per (d, u) edge ordinate
+    and cell visit). Returns the number of packets sent."""
     n0, n1, n2 = Th.shape
     groups = edges.shape[0] - 1
     # each group's scratch (_send's) in a row of its own, 1 kB apart: no two groups share a cache
@@ -189,9 +236,15 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
                     t = (0.0, 0.0, 0.0, 0.0, np.int64(0))
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
-                        t = _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, pending,
-                                  k, i, j, scratch, g, t)
+                        t = _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell,
+                                  pending, k, i, j, scratch, g, held_at, held, t)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
+    for g in range(groups):             # the held parts, group by group, in the order held
+        for q in range(np.int64(scratch[g, 100])):
+            c3, n, row = held_at[g, q, 0], held_at[g, q, 1], held_at[g, q, 2]
+            W[c3, n] += held[g, q, 0]
+            Wa[c3, n] += held[g, q, 1]
+            pending[row // n1, row % n1] = 1
     return add_row_parts(part, tally, row_work)
