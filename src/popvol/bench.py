@@ -74,11 +74,15 @@ SCENES = {
     "wdas_sun_walk": ("wdas_sun.toml", {"solver": "sweep", "isotropic": "walk"},
                       {"width": 160, "height": 90, "resolution": 64},
                       "WDAS cloud under the sun, the one-lobe walk alone (solver = sweep, isotropic = walk)"),
+    "wdas_sun_18": ("wdas_sun.toml", {"ordinates": 18}, {"width": 160, "height": 90, "resolution": 64},
+                    "WDAS cloud under the sun, eighteen ordinates (ordinates = 18)"),
     "wdas_sun_sky": ("wdas_sun_sky.toml", {},
                      {"width": 160, "height": 90, "resolution": 64, "environment_resolution": 32},
                      "WDAS cloud under sun + 8-direction sky (9 domains)"),
     "field_sun_256": ("field_sun.toml", {"resolution": 256}, {"resolution": 48},
                       "procedural cumulus field under the sun at 256 cells"),
+    "field_sun_256_18": ("field_sun.toml", {"resolution": 256, "ordinates": 18}, {"resolution": 48},
+                         "procedural cumulus field under the sun at 256 cells, eighteen ordinates"),
     "field_point": ("field_point.toml", {}, {"resolution": 32},
                     "procedural cumulus field lit by a point light inside it (full-sphere domain)"),
     "field_point_256": ("field_point.toml", {"resolution": 256}, {"resolution": 48},
@@ -376,7 +380,8 @@ def bench_scene(load, repeat: int, source: str) -> dict:
                 sends.append(sent / solution.seconds["propagate"])
     d = [ds.result for ds in solution.domains]
     m, cam = scene.method, scene.camera
-    return {"scene": source, "method": f"{m.solver}: {m.rule} + {m.decay} + {m.isotropic}, gather {m.gather}",
+    solver = f"{m.solver} ({m.ordinates})" if m.solver == "ordinates" else m.solver
+    return {"scene": source, "method": f"{solver}: {m.rule} + {m.decay} + {m.isotropic}, gather {m.gather}",
             "image": [cam.width, cam.height], "resolution": m.resolution,
             "environment_resolution": m.environment_resolution,
             "domains": len(solution.domains), "domain_shape": list(solution.domains[0].domain.shape),
