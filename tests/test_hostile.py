@@ -244,8 +244,8 @@ def test_huge_values_give_short_messages():
 @pytest.mark.parametrize("value", ["[" * 1000 + "]" * 1000, "{a = " * 1000 + "1" + "}" * 1000],
                          ids=["arrays", "inline tables"])
 def test_values_nested_too_deeply_for_the_toml_parser(tmp_path, capsys, no_solve, value):
-    """Python's TOML parser recurses once per level of [ or {: a thousand levels were a
-    RecursionError traceback."""
+    """Python's TOML parser recurses once per level of [ or {: a thousand levels are a one-line
+    error naming the file, not a RecursionError traceback."""
     scene = toml_scene(tmp_path, f"[medium]\nx = {value}\n[[lights]]\ndirection = [0, -1, 0]\n")
     with pytest.raises(PopvolError, match="nested too deeply"):
         load_scene(scene)
@@ -598,8 +598,8 @@ def with_nan(a):
 ])
 def test_compare_refuses_broken_reference_sidecars(reference_files, capsys, no_solve, sidecar, content, words):
     """Each sidecar is checked, and against the image: its numbers in range, its sums finite,
-    >= 0, of the image's shape and, divided by the passes, the image (a traceback, a "resume"
-    advice or silent n/a figures before)."""
+    >= 0, of the image's shape and, divided by the passes, the image: one line naming the file
+    and the field, never a traceback or silent n/a figures."""
     scene, ref = reference_files
     path = Path(str(ref) + sidecar)
     if isinstance(content, dict):
@@ -646,7 +646,7 @@ def test_a_reference_larger_than_a_camera_is_named_as_the_source_of_the_size(ref
 
 def test_reference_resuming_onto_broken_sums_is_refused_before_mitsuba(reference_files, capsys, monkeypatch):
     """popvol reference adding passes to a reference whose sums hold NaN: one line naming the
-    .npz and the array before Mitsuba starts (after it had run, the .exr was blamed)."""
+    .npz and the array, before Mitsuba starts."""
     import popvol.reference
     from popvol.reference import scene_digest
     scene, ref = reference_files

@@ -86,13 +86,13 @@ def test_kernel_matches_its_twin():
     tW, tWa = W0.astype(np.float64), Wa0.astype(np.float64)
     tphi, tF, ttally = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
     for forward in (True, False):
-        sent = ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, np.float32(inv_area), phi,
-                                 F, np.float32(0.0), forward, forward, forward, tally, cell, pending,
-                                 np.array([0, shape[1]]), np.zeros(shape[1]), np.zeros((1, 1, 3), np.int64),
-                                 np.zeros((1, 1, 2)))
+        sent, held = ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, np.float32(inv_area),
+                                       phi, F, np.float32(0.0), forward, forward, forward, tally, cell, pending,
+                                       np.array([0, shape[1]]), np.zeros(shape[1]), np.zeros((1, 1, 3), np.int64),
+                                       np.zeros((1, 1, 2)))
         twin_sent = twins.ordinates18_sweep(tW, tWa, Th, Sh, Dh, inv_area, tphi, tF, 0.0, forward, forward,
                                             forward, ttally)
-        assert sent == twin_sent
+        assert sent == twin_sent and held == 0
     for got, want in ((W.reshape(tW.shape), tW), (Wa.reshape(tW.shape), tWa), (phi, tphi), (F, tF), (tally, ttally)):
         np.testing.assert_allclose(got, want, atol=3e-3 * np.abs(want).max())
 
@@ -162,6 +162,10 @@ def test_fields_do_not_depend_on_the_thread_count(air):
     empty cells (``air``: parts that cross them diagonally into another group's rows are held to
     the sweep's end)."""
     import numba
+    from popvol import walk
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs two threads")
+    held = walk.HELD18[0]
     if air:
         Th, Dh, Sh, injection, read, h = cloud_in_air()
     else:
@@ -179,34 +183,44 @@ def test_fields_do_not_depend_on_the_thread_count(air):
         numba.set_num_threads(before)
     assert np.array_equal(fields[0][0], fields[1][0]) and np.array_equal(fields[0][1], fields[1][1])
     assert fields[0][2] == fields[1][2]
+    assert (walk.HELD18[0] > held) == air          # the domain in air does hold parts
 
 
 def test_other_counts_of_ordinates_are_refused():
-    """experimental.ordinates takes 6 or 18: anything else is a one-line error naming the key."""
+    """experimental.ordinates takes 6 or 18, and 18 only with the "ordinates" solver: anything
+    else is a one-line error naming the key."""
     with pytest.raises(popvol.PopvolError, match=r"experimental\.ordinates = 12 must be 6 or 18") as e:
         popvol.load_scene(None, ordinates=12)
     assert "\n" not in str(e.value)
+    with pytest.raises(popvol.PopvolError, match=r"experimental\.ordinates = 18 needs experimental\.solver"):
+        popvol.load_scene(None, ordinates=18, solver="sweep")
 
 
 def cloud_in_air(h=0.05):
-    """Th, Dh, Sh, the injection, the cells read and h of a 16 x 14 x 12 domain that is mostly
-    air: an ellipsoid of dense medium (sigma_t 5-30, albedo 0.97, g 0.85), the cells around it read."""
+    """Th, Dh, Sh, the injection, the cells read and h of a 24 x 24 x 12 domain that is mostly
+    air: two ellipsoids of dense medium (sigma_t 5-30, albedo 0.97, g 0.85) apart along a
+    diagonal of the (d, u) plane, so that light crosses runs of skipped cells between them along
+    the (d, u) edges (the parts held to a sweep's end, kernels/ordinates18.py); the cells around
+    them read."""
     rng = np.random.default_rng(5)
-    shape = (16, 14, 12)
+    shape = (24, 24, 12)
     x = np.indices(shape).astype(np.float32)
-    r2 = sum(((x[a] - c) / s) ** 2 for a, c, s in zip(range(3), (8, 6, 6), (4, 3, 3)))
-    sigma_t = np.where(r2 < 1.0, rng.uniform(5.0, 30.0, shape), 0.0).astype(np.float32)
+    sigma_t = np.zeros(shape, np.float32)
+    read = np.zeros(shape, bool)
+    for c in ((5, 5, 6), (18, 18, 6)):
+        r2 = sum(((x[a] - c[a]) / s) ** 2 for a, s in zip(range(3), (3, 3, 3)))
+        sigma_t = np.where(r2 < 1.0, rng.uniform(5.0, 30.0, shape), sigma_t).astype(np.float32)
+        read[tuple(slice(max(v - 4, 0), v + 5) for v in c)] = True
     sigma_s = (0.97 * sigma_t).astype(np.float32)
     Th, Dh = medium_factors(sigma_t, sigma_s, np.full(shape, 0.85, np.float32), h, "poisson")
-    read = np.zeros(shape, bool)
-    read[4:12, 3:10, 3:9] = True
     return Th, Dh, scatter_factor(sigma_s, h), np.full(shape[1:], h * h, np.float32), read, h
 
 
 def test_skipping_empty_space_leaves_the_fields_that_are_read():
     """A cloud in a domain that is mostly air: walked with the empty cells that no one reads
     skipped (light crosses each run of them along its ordinate in one step) and with every cell
-    visited, to a tolerance of 1e-6, the fields of the cells that are read agree within 1e-4 of
+    visited (parts crossing the air between two clouds along the (d, u) edges held to the sweep's
+    end), to a tolerance of 1e-6, the fields of the cells that are read agree within 1e-4 of
     their largest value (only the order in which packets meet changes), the skipped cells' stay
     0, and the budgets agree within twice the tolerance of the light injected."""
     from popvol.walk import skipped_cells

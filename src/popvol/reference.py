@@ -200,9 +200,8 @@ def path_traced_digest(scene: Scene) -> str:
 def check_reference_scene(path, meta: dict, scene: Scene) -> None:
     """A one-line PopvolError unless the reference at ``path`` (its metadata ``meta``) was
     rendered for ``scene``, as far as its metadata tells: by ``path_traced_digest``. A
-    reference written before popvol kept that digest is not checked (its ``scene_digest``
-    also covers popvol's decomposition of an environment into lights, which has changed
-    since some were made)."""
+    reference without that digest is not checked (its ``scene_digest`` also covers popvol's
+    decomposition of an environment into lights, which Mitsuba does not see)."""
     recorded = meta.get("path_traced_digest")
     if recorded is None or recorded == path_traced_digest(scene):
         return

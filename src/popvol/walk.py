@@ -16,6 +16,7 @@ whose lobe has spread leave the walk (docs/METHOD.md, "Hand-over").
 from __future__ import annotations
 
 import functools
+import threading
 import time
 
 import numba
@@ -82,8 +83,12 @@ def _lattice18() -> np.ndarray:
 #: the eighteen-ordinate walk's directions as offsets in cells (kernels/ordinates18.py)
 ORDINATES18 = _lattice18()
 #: the groups of rows the eighteen-ordinate sweep runs as a pipeline (one thread each at most),
-#: fixed so that the fields do not depend on the number of threads
+#: fixed so that the fields do not depend on the number of threads: it uses two threads at most
 GROUPS18 = 2
+#: parts held to a sweep's end by the eighteen-ordinate walks of this process (kernels/ordinates18.py)
+HELD18 = [0]
+#: memory ordinate18_table takes while it is built (its bands of cosine in chunks)
+ORDINATE18_TABLE_BYTES = 40_000_000
 
 
 def _signed_permutations() -> list[np.ndarray]:
@@ -98,8 +103,18 @@ def _signed_permutations() -> list[np.ndarray]:
     return out
 
 
-@functools.lru_cache(maxsize=2)
+_TABLE18_LOCK = threading.Lock()
+
+
 def ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) -> np.ndarray:
+    """:func:`_ordinate18_table`, built once per process (light domains solved side by side
+    on Python threads wait for the first)."""
+    with _TABLE18_LOCK:
+        return _ordinate18_table(n_a, n_mu, n_azimuth)
+
+
+@functools.lru_cache(maxsize=2)
+def _ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) -> np.ndarray:
     """float32 (18, n_a, 18, 2): for a lobe HG_a about ordinate o's direction e_o (a =
     linspace(-1, 1, n_a)), the share of it in ordinate n's part of the sphere (the directions
     nearer to e_n than to any other of the 18, :data:`ORDINATES18`), and that share times its
@@ -126,15 +141,17 @@ def ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) -> 
         p = np.cross(e, [0.0, 0.0, 1.0] if abs(e[2]) < 0.9 else [1.0, 0.0, 0.0])
         p /= np.linalg.norm(p)
         q = np.cross(e, p)
-        sin = np.sqrt(1.0 - mu ** 2)
-        dirs = (mu[:, None, None] * e + sin[:, None, None] * (np.cos(phi)[None, :, None] * p
-                                                               + np.sin(phi)[None, :, None] * q))
-        dots = np.einsum("mzk,nk->mzn", dirs, axes)
-        nearest = np.argmax(dots, axis=2)
-        own = np.take_along_axis(dots, nearest[..., None], axis=2)[..., 0]
-        index = (np.arange(n_mu)[:, None] * 18 + nearest).ravel()
-        frac = np.bincount(index, minlength=n_mu * 18).reshape(n_mu, 18) / n_azimuth
-        cos = np.bincount(index, own.ravel(), minlength=n_mu * 18).reshape(n_mu, 18) / n_azimuth
+        ring = np.cos(phi)[:, None] * p + np.sin(phi)[:, None] * q          # (n_azimuth, 3)
+        frac, cos = np.zeros((n_mu, 18)), np.zeros((n_mu, 18))
+        for b in range(0, n_mu, 128):                  # bands of cosine in chunks: little memory
+            m = mu[b:b + 128]
+            dirs = m[:, None, None] * e + np.sqrt(1.0 - m ** 2)[:, None, None] * ring[None]
+            dots = np.einsum("mzk,nk->mzn", dirs, axes)
+            nearest = np.argmax(dots, axis=2)
+            own = np.take_along_axis(dots, nearest[..., None], axis=2)[..., 0]
+            index = (np.arange(len(m))[:, None] * 18 + nearest).ravel()
+            frac[b:b + 128] = np.bincount(index, minlength=len(m) * 18).reshape(len(m), 18) / n_azimuth
+            cos[b:b + 128] = np.bincount(index, own.ravel(), minlength=len(m) * 18).reshape(len(m), 18) / n_azimuth
         share = np.einsum("am,mn->an", lobe, frac)
         moment = np.einsum("am,mn->an", lobe, cos)
         total = share.sum(axis=1, keepdims=True)
@@ -331,12 +348,14 @@ def scatter_factor(sigma_s, h: float) -> np.ndarray:
 
 
 def row_groups(row_work: np.ndarray, visits: float, forward_u: bool, lanes: int) -> np.ndarray:
-    """int64 (groups + 1,): where to cut the rows of a six-ordinate sweep into one group per
-    thread (kernels.ordinates.ordinates_sweep), as row positions in the sweep's order along u:
-    the cuts share out each row's work, ``row_work`` (float (n_u,), packets sent per row i in
-    the sweep before) plus ``visits`` / propagation.VISIT_COST per row (its cells' visits),
-    evenly. At most ``lanes`` groups, none empty. Where the rows are cut never changes the
-    result, only the time."""
+    """int64 (groups + 1,): where to cut the rows of a six- or eighteen-ordinate sweep into
+    groups (kernels.ordinates.ordinates_sweep, one per thread; kernels.ordinates18, GROUPS18),
+    as row positions in the sweep's order along u: the cuts share out each row's work,
+    ``row_work`` (float (n_u,), packets sent per row i in the sweep before) plus ``visits`` /
+    propagation.VISIT_COST per row (its cells' visits), evenly. At most ``lanes`` groups, none
+    empty. For the six-ordinate sweep where the rows are cut never changes the result, only the
+    time; the eighteen-ordinate sweep's fields depend on the cut, which depends on the fields
+    and GROUPS18, not on the thread count."""
     n1 = row_work.shape[0]
     work = row_work + visits / K.VISIT_COST
     if not forward_u:
@@ -435,8 +454,17 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     n = int(np.prod(shape))
     kept = np.ones(shape, np.bool_) if skip is None else ~np.asarray(skip, np.bool_)
     m = int(np.count_nonzero(kept))
-    held = 4 * m if skip is not None and skip.any() else 1     # parts held to a sweep's end
-    check_memory(2 * 18 * 4 * m + 4 * 3 * n + 4 * n + GROUPS18 * held * 40,
+    # parts that can be held to a sweep's end: one per kept cell and (d, u) edge whose neighbour
+    # along it is skipped (kernels/ordinates18.py)
+    held = 1
+    if skip is not None and skip.any():
+        for off in ORDINATES18[6:10]:                  # the (d, u) edges
+            ahead = np.zeros(shape, np.bool_)
+            src = tuple(slice(max(-x, 0), shape[a] - max(x, 0)) for a, x in enumerate(off))
+            dst = tuple(slice(max(x, 0), shape[a] - max(-x, 0)) for a, x in enumerate(off))
+            ahead[src] = skip[dst]
+            held += int(np.count_nonzero(ahead & kept))
+    check_memory(2 * 18 * 4 * m + 4 * 3 * n + 4 * n + GROUPS18 * held * 40 + ORDINATE18_TABLE_BYTES,
                  "experimental.ordinates (18) with method.resolution",
                  f"the 18 ordinates of a {'x'.join(map(str, shape))} domain (power and moment)")
     cell = np.full(shape, -1, np.int32)
@@ -467,9 +495,10 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
 
     def one_sweep(it, w_min):
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, GROUPS18)
-        sent = KO18.ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, inv_area, phi, flux,
-                                      np.float32(w_min), it % 2 == 0, it % 4 < 2, it % 8 < 4, tally, cell, pending,
-                                      edges, row_work, held_at, held_parts)
+        sent, held = KO18.ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, inv_area, phi,
+                                            flux, np.float32(w_min), it % 2 == 0, it % 4 < 2, it % 8 < 4, tally,
+                                            cell, pending, edges, row_work, held_at, held_parts)
+        HELD18[0] += held
         return K.total_energy(flat), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n, injected,
                                                 progress)

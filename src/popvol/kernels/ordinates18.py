@@ -35,10 +35,13 @@ The sweep visits the cells in order of k, then i, then j (each increasing or dec
 cell in place (a Gauss-Seidel sweep), and only the rows marked ``pending`` (uint8 (n_d, n_u)):
 a row's mark is cleared when it is swept and set by every packet that arrives in it or stays
 pending there. Its rows are cut into groups that sweep as a pipeline: group g sweeps slice s
-while group g - 1 sweeps slice s + 3. A cell writes only into the slices next to its own, so
-the two groups' writes never meet (slices s - 1 .. s + 1 against s + 2 .. s + 4). What a group
-sends into the rows of the group ahead of it arrives after that group has swept them and waits
-for the next sweep. The cut is the callers' (walk.row_groups), not the thread count's, so the
+while group g - 1 sweeps slice s + 3. A cell reads its own packets only, and sends to its
+neighbours, in the slices next to its own: the two groups' deliveries never meet (slices s - 1
+.. s + 1 against s + 2 .. s + 4). What a group sends into the rows of the group ahead of it
+arrives after that group has swept them and waits for the next sweep. (For the parts that
+cross runs of skipped cells, below: along +-d or a (d, v) edge a part stays in its group's own
+rows, along u, v or a (u, v) edge in its slice, where no other group is; along a (d, u) edge it
+is held to the sweep's end.) The cut is the callers' (walk.row_groups), not the thread count's, so the
 fields are the same bits on one thread or two.
 
 Empty space (docs/METHOD.md, "Skipping empty space", as the six-ordinate walk's): a skipped
@@ -104,7 +107,8 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
                 pending[k, i] = 1
             continue
         if not sending:
-            scratch[g, 0:36] = 0.0
+            for n in range(2 * M18):
+                scratch[g, n] = 0.0
             sending = True
         wa = Wa[c, o]
         W[c, o] = 0.0
@@ -216,7 +220,7 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
     receives the packets each row sent, for the next sweep's cut. ``held_at`` int64 (groups,
     capacity, 3) and ``held`` float64 (groups, capacity, 2): room for the parts held to the
     sweep's end (module docstring; capacity 4 m is enough: at most one per (d, u) edge ordinate
-    and cell visit). Returns the number of packets sent."""
+    and cell visit, with the neighbour along it skipped). Returns (packets sent, parts held)."""
     n0, n1, n2 = Th.shape
     groups = edges.shape[0] - 1
     # each group's scratch (_send's) in a row of its own, 1 kB apart: no two groups share a cache
@@ -247,4 +251,7 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
             W[c3, n] += held[g, q, 0]
             Wa[c3, n] += held[g, q, 1]
             pending[row // n1, row % n1] = 1
-    return add_row_parts(part, tally, row_work)
+    held_parts = 0
+    for g in range(groups):
+        held_parts += np.int64(scratch[g, 100])
+    return add_row_parts(part, tally, row_work), held_parts
