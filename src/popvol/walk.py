@@ -375,6 +375,27 @@ def skipped_cells(Th, Dh, Sh, read) -> np.ndarray:
     return empty & ~read & ~grow(~empty)
 
 
+def inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally) -> tuple[float, float]:
+    """The light injected at the face k = 0 of an ordinates walk (:func:`walk_ordinates`,
+    :func:`walk_ordinates18`) into ordinate +d (column 0 of W, Wa, one row per cell not skipped:
+    ``cell``): it crosses half a cell to the first centres (a0 decayed by Dh there), in slice 0,
+    or, where a column starts with skipped cells, in the cell after them; a column skipped
+    throughout transmits it (``tally``). Marks the rows it enters ``pending``. Returns (power
+    the half step into slice 0 absorbed, power injected)."""
+    kept = cell >= 0
+    first = np.argmax(kept, axis=0)                    # the first cell of each column along d kept
+    ahead = kept.any(axis=0)
+    I, J = np.nonzero(ahead)
+    k1 = first[ahead]
+    c = cell[k1, I, J]
+    W[c, 0] = injection[ahead] * Th[k1, I, J]
+    Wa[c, 0] = W[c, 0] * np.float32(a0) * Dh[k1, I, J]
+    pending[k1, I] = 1
+    tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
+    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+    return absorbed, float(np.sum(injection, dtype=np.float64))
+
+
 def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
                    skip=None) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
@@ -408,19 +429,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     W = np.zeros((m, 12), np.float32)
     Wa = np.zeros_like(W)
     pending = np.zeros(shape[:2], np.uint8)
-    # the injected light crosses half a cell to the first centres (a0 decayed by Dh there): in
-    # slice 0, or, where a column starts with skipped cells, in the cell after them
-    I, J = np.indices(shape[1:])
-    first = runs[0, 0].astype(np.int64)
-    ahead = first < shape[0]
-    k1, I, J = first[ahead], I[ahead], J[ahead]
-    c = cell[k1, I, J]
-    W[c, 0] = injection[ahead] * Th[k1, I, J]
-    Wa[c, 0] = W[c, 0] * np.float32(a0) * Dh[k1, I, J]
-    pending[k1, I] = 1
-    tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
-    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
-    injected = float(np.sum(injection, dtype=np.float64))
+    absorbed, injected = inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally)
 
     row_work = np.zeros(shape[1])
     lanes = numba.get_num_threads()
@@ -475,19 +484,7 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     W = np.zeros((m, 18), np.float32)
     Wa = np.zeros_like(W)
     pending = np.zeros(shape[:2], np.uint8)
-    # the injected light crosses half a cell to the first centres (a0 decayed by Dh there): in
-    # slice 0, or, where a column starts with skipped cells, in the cell after them
-    first = np.argmax(kept, axis=0)                    # the first kept cell of each column along d
-    ahead = kept.any(axis=0)
-    I, J = np.nonzero(ahead)
-    k1 = first[ahead]
-    c = cell[k1, I, J]
-    W[c, 0] = injection[ahead] * Th[k1, I, J]
-    Wa[c, 0] = W[c, 0] * np.float32(a0) * Dh[k1, I, J]
-    pending[k1, I] = 1
-    tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
-    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
-    injected = float(np.sum(injection, dtype=np.float64))
+    absorbed, injected = inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally)
     flat = W.reshape(m, 1, 18)
     row_work = np.zeros(shape[1])
     held_at = np.zeros((GROUPS18, held, 3), np.int64)
