@@ -660,6 +660,21 @@ def test_reference_resuming_onto_broken_sums_is_refused_before_mitsuba(reference
     assert ref.read_bytes() == before
 
 
+def test_reference_resuming_at_another_size_says_so(reference_files, capsys, monkeypatch):
+    """popvol reference adding passes at another --width / --height than the reference's: one
+    line naming the two sizes, before Mitsuba starts (the scene's digest, which covers the size,
+    would only say "another scene")."""
+    import popvol.reference
+    from popvol.reference import path_traced_digest
+    scene, ref = reference_files
+    monkeypatch.setattr(popvol.reference, "import_mitsuba", lambda *a, **k: pytest.fail("Mitsuba started"))
+    meta = {"spp": 8, "passes": 2, "spp_per_pass": 4, "seconds": 1.0,
+            "path_traced_digest": path_traced_digest(load_scene(scene))}
+    Path(str(ref) + ".json").write_text(json.dumps(meta))
+    cli_refuses(capsys, ["reference", scene, "-o", ref, "--spp", "8", "--passes", "2", "--width", "32", "--height",
+                         "18"], "is 16x9 pixels", "resume at that size", "now 32x18")
+
+
 @pytest.mark.parametrize("medium, field, words", [
     ('file = "nope.npz"', "medium.file", ["volume file", "nope.npz", "not found"]),
     ('file = "."', "medium.file", ["is a folder"]),

@@ -466,15 +466,16 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
             raise PopvolError(f"{output}: exists without its {meta_path.name} / {sums_path.name}; "
                               "remove it or choose another output to start a new reference")
         meta = _read_meta(meta_path)
+        ref, (s, s2, sb) = _load_reference(output)
+        # the size first: both digests cover it, and a size is what --width / --height change
+        if ref.image.shape[:2] != (scene.camera.height, scene.camera.width):
+            raise PopvolError(f"{output}: is {ref.image.shape[1]}x{ref.image.shape[0]} pixels; resume at that size "
+                              f"(now {scene.camera.width}x{scene.camera.height}) or choose another output")
         same = (meta["path_traced_digest"] == traced if "path_traced_digest" in meta
                 else meta.get("scene_digest") == digest)
         if not same:
             raise PopvolError(f"{output}: was rendered for another scene ({check._show(meta.get('scene'))}); "
                               "choose another output")
-        ref, (s, s2, sb) = _load_reference(output)
-        if ref.image.shape[:2] != (scene.camera.height, scene.camera.width):
-            raise PopvolError(f"{output}: is {ref.image.shape[1]}x{ref.image.shape[0]} pixels; resume at that size "
-                              f"(now {scene.camera.width}x{scene.camera.height}) or choose another output")
         done_passes, done_spp = ref.passes, ref.spp
         old = sb is None or "passes_b" not in meta      # sum_b without its count: start B afresh
         nb = 0 if old else meta["passes_b"]
