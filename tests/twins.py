@@ -129,6 +129,21 @@ def _ahead(x, axis, step):
     return padded[tuple(idx)]
 
 
+def _escaped(tally, shape, dst, e) -> bool:
+    """Whether cell ``dst`` (a tuple) lies outside a grid of ``shape``; if so ``e`` is tallied
+    where it left: through the face k = 0 (reflected), the far face (transmitted) or a lateral
+    face (side)."""
+    if dst[0] < 0:
+        tally[REFLECTED] += e
+    elif dst[0] >= shape[0]:
+        tally[TRANSMITTED] += e
+    elif not all(0 <= c < n for c, n in zip(dst[1:], shape[1:])):
+        tally[SIDE_ESCAPED] += e
+    else:
+        return False
+    return True
+
+
 def _scattered_lobe(a, S, D):
     """(a_s, the cone partition of HG_a_s about e_o): a_s = a (D - S) / (1 - S), the anisotropy
     of the part of a packet that scatters on a transfer whose no-scatter share is S and whose
@@ -240,13 +255,7 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
             c = list(dst)                                  # a skipped cell: across its run
             c[q // 2] += (1 - 2 * (q % 2)) * int(runs[(q,) + dst])
             dst = tuple(c)
-        if dst[0] < 0:
-            tally[REFLECTED] += e
-        elif dst[0] >= n0:
-            tally[TRANSMITTED] += e
-        elif not inside(dst):
-            tally[SIDE_ESCAPED] += e
-        else:
+        if not _escaped(tally, Th.shape, dst, e):
             th2 = Th[dst]
             tally[ABSORBED] += e * (1.0 - th2)
             W[(q,) + dst] += e * th2
@@ -350,13 +359,7 @@ def ordinates18_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, for
         return 0 <= c[0] < n0 and 0 <= c[1] < n1 and 0 <= c[2] < n2
 
     def deliver(e, m, q, dst):
-        if dst[0] < 0:
-            tally[REFLECTED] += e
-        elif dst[0] >= n0:
-            tally[TRANSMITTED] += e
-        elif not inside(dst):
-            tally[SIDE_ESCAPED] += e
-        else:
+        if not _escaped(tally, Th.shape, dst, e):
             th = Th[dst] ** np.linalg.norm(offs[q])
             tally[ABSORBED] += e * (1.0 - th)
             W[dst + (q,)] += e * th

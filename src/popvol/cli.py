@@ -160,8 +160,8 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
                    f"thin to see; {output} shows the background alone" + (", which is black" if black else ""),
                    err=True)
     elif black:
-        click.echo(f"popvol: warning: the image is black (every pixel 0): no light reaches the camera from the "
-                   f"medium; are the lights' irradiance or intensity 0?", err=True)
+        click.echo("popvol: warning: the image is black (every pixel 0): no light reaches the camera from the "
+                   "medium; are the lights' irradiance or intensity 0?", err=True)
     for d in info["domains"]:
         if not d["converged"]:
             click.echo(f"popvol: warning: light {d['light']} stopped after {d['iterations']} iterations "
