@@ -79,7 +79,7 @@ def pending_rows(W):
 
 
 def kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally, runs=None, edges=None, work=None,
-                 pending=None):
+                 pending=None, upwind=False):
     """One kernels.ordinates.ordinates_sweep of the full-grid state W, Wa (float32 (12,) + shape,
     updated in place): the kernel's state has one row (12 slots) per cell not skipped (``runs``
     > 0; None: no cell skipped), which hold every packet; ``pending`` None: the rows holding
@@ -95,7 +95,7 @@ def kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally, runs=None, edge
     sent = KO.ordinates_sweep(Wc, Wac, Th, Dh, Sh, ordinate_table(), np.float32(3.0), phi, F, np.float32(w_min),
                               *order, tally, np.array([0, shape[1]]) if edges is None else np.asarray(edges, np.int64),
                               np.zeros(shape[1]) if work is None else work, cell, runs,
-                              pending_rows(W) if pending is None else pending)
+                              pending_rows(W) if pending is None else pending, upwind)
     W[:, kept], Wa[:, kept] = Wc.T, Wac.T
     return sent
 
@@ -188,19 +188,21 @@ def test_rows_marked_pending_are_all_the_sweep_visits(rng):
 
 @pytest.mark.parametrize("order", [(True, True, True), (False, True, False), (True, False, False),
                                    (False, False, True)])
-def test_ordinates_kernel_equals_numpy_twin(rng, order):
-    """One sweep in each order, some packets below the threshold staying pending."""
+@pytest.mark.parametrize("upwind", [False, True])
+def test_ordinates_kernel_equals_numpy_twin(rng, order, upwind):
+    """One sweep in each order, some packets below the threshold staying pending (and, upwind,
+    those of the ordinates pointing back against the order)."""
     shape = (6, 5, 4)
     W, Wa, Th, Sh, Dh = random_state(rng, shape)
     W_r, Wa_r = W.astype(np.float64), Wa.astype(np.float64)
     phi, F = np.zeros(shape, np.float32), np.zeros((3,) + shape, np.float32)
     tally = np.zeros(4)
     w_min = 0.2
-    sent = kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally)
+    sent = kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally, upwind=upwind)
 
     phi_r, F_r, tally_r = np.zeros(shape), np.zeros((3,) + shape), np.zeros(4)
     before = W_r.sum()
-    sent_r = ref.ordinates_sweep(W_r, Wa_r, Th, Sh, Dh, 3.0, phi_r, F_r, w_min, *order, tally_r)
+    sent_r = ref.ordinates_sweep(W_r, Wa_r, Th, Sh, Dh, 3.0, phi_r, F_r, w_min, *order, tally_r, upwind=upwind)
     assert sent == sent_r and 0 < sent < W.size // 2
     assert_same_sweep((W, Wa, phi, F, tally), (W_r, Wa_r, phi_r, F_r, tally_r), before)
     # every pending packet's anisotropy stays in [-1, 1]

@@ -228,8 +228,16 @@ def _cone_lobe(a_s):
     return fr, sd, bk, mf, mb, hg.side_wedge_mean_cosine(a_s)
 
 
+def sends_ahead(offset, forward_d, forward_u, forward_v) -> bool:
+    """Whether the cell at ``offset`` (3 ints) from a cell comes after it in a sweep's order
+    (k, then i, then j, each increasing if its ``forward_*``): the ordinates an upwind sweep
+    sends."""
+    a, b, c = (x if f else -x for x, f in zip(offset, (forward_d, forward_u, forward_v)))
+    return a > 0 or (a == 0 and (b > 0 or (b == 0 and c > 0)))
+
+
 def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    runs=None):
+                    runs=None, upwind=False):
     """One Gauss-Seidel sweep of the six-ordinate walk (twin of kernels.ordinates.ordinates_sweep),
     cell by cell, in place, in float64. Cells in order of k, i, j (each increasing if its
     ``forward_*``); at each cell first the light that scattered on its way in (slots 6..11, as
@@ -237,7 +245,9 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
     above ``w_min`` is taken, visits (phi, F) and is sent as ordinates_step's (exact HG shares):
     its parts moved into their pending slots, what leaves the grid tallied; a part sent into a
     skipped cell (``runs[q]`` > 0 there, :func:`skip_runs`; None: none) crosses the run of them
-    ahead along its ordinate q to the cell after it. Returns the number of packets sent."""
+    ahead along its ordinate q to the cell after it. With ``upwind`` only the ordinates toward
+    cells later in the order are sent (:func:`sends_ahead`); the others stay pending. Returns
+    the number of packets sent."""
     n0, n1, n2 = Th.shape
     Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
     sent_packets = 0
@@ -271,7 +281,8 @@ def ordinates_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forwa
                         _scattered_in(W, Wa, o, _cone_lobe(a_s), at=(k, i, j))
                 for o in range(6):
                     w = float(W[o, k, i, j])
-                    if w <= w_min:
+                    if w <= w_min or (upwind and not sends_ahead(neighbour((0, 0, 0), o), forward_d, forward_u,
+                                                                  forward_v)):
                         continue
                     wa = float(Wa[o, k, i, j])
                     W[o, k, i, j] = Wa[o, k, i, j] = 0.0
@@ -337,7 +348,8 @@ def _fibonacci_bins(n):
     return _FIBONACCI[n]
 
 
-def ordinates18_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally):
+def ordinates18_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
+                      upwind=False):
     """One Gauss-Seidel sweep of the eighteen-ordinate walk (twin of
     kernels.ordinates18.ordinates18_sweep), cell by cell, in place, in float64, with each
     packet's scattered lobe split by :func:`lattice18_partition` at its own a_s (no table).
@@ -349,7 +361,9 @@ def ordinates18_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, for
     1 - Sh[src]^L scatters and its parts go to the sender's neighbours (each part n after that
     neighbour's Th^|offs[n]|); the receiver's share Sh[src]^L (1 - Sh[dst]^L) crosses into dst
     (Th[dst]^L) and splits there into dst's own ordinates; both with a_s = a (D - S) / (1 - S),
-    D = (Dh[src] Dh[dst])^L. What leaves the grid is tallied. Returns the packets sent."""
+    D = (Dh[src] Dh[dst])^L. What leaves the grid is tallied. With ``upwind`` only the
+    ordinates toward cells later in the order are sent (:func:`sends_ahead`); the others stay
+    pending. Returns the packets sent."""
     from popvol.walk import ORDINATES18 as offs
     n0, n1, n2 = Th.shape
     Th, Sh, Dh = (x.astype(np.float64) for x in (Th, Sh, Dh))
@@ -371,7 +385,7 @@ def ordinates18_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, for
                 cell = (k, i, j)
                 for o in range(18):
                     w = float(W[cell + (o,)])
-                    if w <= w_min:
+                    if w <= w_min or (upwind and not sends_ahead(offs[o], forward_d, forward_u, forward_v)):
                         continue
                     wa = float(Wa[cell + (o,)])
                     W[cell + (o,)] = Wa[cell + (o,)] = 0.0

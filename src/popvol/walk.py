@@ -115,10 +115,10 @@ def ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) -> 
 
 @functools.lru_cache(maxsize=2)
 def _ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) -> np.ndarray:
-    """float32 (18, n_a, 18, 2): for a lobe HG_a about ordinate o's direction e_o (a =
-    linspace(-1, 1, n_a)), the share of it in ordinate n's part of the sphere (the directions
-    nearer to e_n than to any other of the 18, :data:`ORDINATES18`), and that share times its
-    mean cosine about e_n (kernels/ordinates18.py). The shares of a lobe sum to 1.
+    """float32 (18, n_a, 2, 18): for a lobe HG_a about ordinate o's direction e_o (a =
+    linspace(-1, 1, n_a)), [o, a, 0, n] the share of it in ordinate n's part of the sphere (the
+    directions nearer to e_n than to any other of the 18, :data:`ORDINATES18`), and [o, a, 1,
+    n] that share times its mean cosine about e_n (kernels/ordinates18.py). The shares of a lobe sum to 1.
 
     By quadrature over n_mu bands of cosine about the lobe's axis (each weighted by the lobe's
     exact integral over it) times n_azimuth azimuths, for one face and one edge; the other ordinates follow by the cube's symmetries.
@@ -135,7 +135,7 @@ def _ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) ->
     g = np.where(flat, 0.5, inner)
     primitive = (1.0 - g ** 2) / g / np.sqrt(1.0 + g ** 2 - 2.0 * g * edges[None, :])
     lobe = np.where(flat, np.diff(edges)[None, :], np.diff(primitive, axis=1))
-    table = np.zeros((18, n_a, 18, 2))
+    table = np.zeros((18, n_a, 2, 18))
     for c in (0, 6):                     # a face and an edge
         e = axes[c]
         p = np.cross(e, [0.0, 0.0, 1.0] if abs(e[2]) < 0.9 else [1.0, 0.0, 0.0])
@@ -155,18 +155,18 @@ def _ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) ->
         share = np.einsum("am,mn->an", lobe, frac)
         moment = np.einsum("am,mn->an", lobe, cos)
         total = share.sum(axis=1, keepdims=True)
-        table[c, 1:-1, :, 0] = share / total
-        table[c, 1:-1, :, 1] = moment / total
+        table[c, 1:-1, 0] = share / total
+        table[c, 1:-1, 1] = moment / total
         opposite = int(np.flatnonzero((ORDINATES18 == -ORDINATES18[c]).all(axis=1))[0])
-        table[c, -1, c] = (1.0, 1.0)
-        table[c, 0, opposite] = (1.0, 1.0)
+        table[c, -1, :, c] = (1.0, 1.0)
+        table[c, 0, :, opposite] = (1.0, 1.0)
     index_of = {tuple(v): n for n, v in enumerate(ORDINATES18)}
     rotations = _signed_permutations()
     for o in range(18):
         c = 0 if o < 6 else 6
         R = next(R for R in rotations if (R @ ORDINATES18[c] == ORDINATES18[o]).all())
         image = [index_of[tuple(R @ ORDINATES18[n])] for n in range(18)]
-        table[o][:, image] = table[c]
+        table[o][..., image] = table[c]
     return table.astype(np.float32)
 
 
@@ -402,8 +402,9 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     domain's shape, :func:`scatter_factor`), every order of scattering, by thresholded
     Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
     in the mean pending power): the injected light enters ordinate +d; the sweeps alternate +d
-    / -d every sweep, the order along u every second and along v every fourth. Returns
-    (sweeps, power in flight, power the injection's half step absorbed, packets sent).
+    / -d every sweep, the order along u every second and along v every fourth, and each sends
+    only the ordinates that point ahead in its order (upwind; the others wait for a sweep
+    their way). Returns (sweeps, power in flight, power the injection's half step absorbed, packets sent).
     Accumulates into phi, flux (float32 (3,) + shape, the first moment in the domain's frame)
     and tally, except in the ``skip`` cells (:func:`skipped_cells`; None: none), which light
     crosses a run at a time (kernels.cells.skip_runs, int16 (6,) + shape) and which hold no
@@ -438,7 +439,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         # the rows cut into one group per thread by the work each row did in the sweep before
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
-                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, cell, runs, pending)
+                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, cell, runs, pending, upwind=True)
         return K.total_energy(W.reshape(m, 1, 12)), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * n, injected, progress)
@@ -448,9 +449,10 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
 def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
                      skip=None) -> tuple[int, float, float, int]:
     """The eighteen-ordinate walk (kernels/ordinates18.py) of :func:`walk_box`: as
-    :func:`walk_ordinates` with a direction per face and per edge of the lattice, visiting every
-    cell of a pending row that is not skipped. The injected light enters ordinate +d of slice 0; the sweeps
-    alternate +d / -d every sweep, the order along u every second and along v every fourth. The
+    :func:`walk_ordinates` with a direction per face and per edge of the lattice, visiting
+    every cell of a pending row that is not skipped. The injected light enters ordinate +d of
+    slice 0; the sweeps alternate +d / -d every sweep, the order along u every second and along
+    v every fourth, each sending only the ordinates that point ahead in its order (upwind). The
     rows are cut into GROUPS18 groups that sweep as a pipeline (:func:`row_groups`, by the
     packets each row sent in the sweep before), whatever the number of threads. Returns
     (sweeps, power in flight, power the injection's half step absorbed, packets sent);
@@ -494,7 +496,7 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
         edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, GROUPS18)
         sent, held = KO18.ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, inv_area, phi,
                                             flux, np.float32(w_min), it % 2 == 0, it % 4 < 2, it % 8 < 4, tally,
-                                            cell, pending, edges, row_work, held_at, held_parts)
+                                            cell, pending, edges, row_work, held_at, held_parts, upwind=True)
         HELD18[0] += held
         return K.total_energy(flat), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n, injected,

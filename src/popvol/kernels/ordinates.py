@@ -127,14 +127,15 @@ def _part(o, n, cone):
 
 
 @nb.njit(**ON_ITS_OWN)
-def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, tallies, out):
+def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, tallies, out, ahead):
     """Cell (k, i, j) sends its pending packets above ``w_min``, ordinate by ordinate (module
     docstring; :func:`ordinates_sweep`); a skipped cell (``cell`` < 0) holds none. A packet
     left pending marks its row in ``pending``. What all its packets send to one neighbour (in
     that neighbour's ordinate n) is summed in ``out`` (float64, 12 or more, scratch: power, then
     power times anisotropy) and delivered once, a merge that changes the fields only by
-    rounding. ``tallies`` = (reflected, transmitted, side escaped, absorbed, packets sent) so
-    far; returns them updated."""
+    rounding. Only the ordinates marked ``ahead`` (bool (6,)) are sent. ``tallies`` =
+    (reflected, transmitted, side escaped, absorbed, packets sent) so far; returns them
+    updated."""
     c = cell[k, i, j]
     if c < 0:
         return tallies
@@ -162,7 +163,7 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending
     out[:] = 0.0
     for o in range(6):
         w = W[c, o]
-        if w <= w_min:
+        if w <= w_min or not ahead[o]:
             if w > 0.0 and pending[k, i] == 0:
                 pending[k, i] = 1
             continue
@@ -226,14 +227,17 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    edges, row_work, cell, runs, pending):
+                    edges, row_work, cell, runs, pending, upwind):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
     a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
     in place: what crosses to the next cell along its ordinate unscattered keeps its lobe, what
     scatters on the way is split to the six neighbours (module docstring). What leaves the
     domain is tallied (``tally``), as what the half steps absorb. Packets at or below ``w_min``
-    stay pending. Returns the number of packets sent.
+    stay pending, and with ``upwind`` so do those of the ordinates that point back against the
+    sweep's order (toward cells it has passed): they wait, gathering what else arrives, for a
+    sweep in their own direction, in which they cross the domain at once rather than one cell.
+    Returns the number of packets sent.
 
     On threads as a pipeline: the rows, in the sweep's order, are cut into groups at ``edges``
     (int64 (groups + 1,), row positions in that order from 0 to n_u, one group per thread: see
@@ -258,6 +262,11 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
     part = np.zeros((5, n0 * n1))
     # each group's parts leaving a cell (_send), 12 of 24 slots: no two groups share a cache line
     out = np.zeros((groups, 24))
+    ahead = np.ones(6, np.bool_)
+    if upwind:
+        for o in range(6):
+            forward = (forward_d, forward_u, forward_v)[o // 2]
+            ahead[o] = (o % 2 == 0) == forward
     for step in range(n0 + groups - 1):
         for g in nb.prange(groups):
             s = step - g
@@ -272,7 +281,7 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
                         t = _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending, k, i, j, t,
-                                  out[g])
+                                  out[g], ahead)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]

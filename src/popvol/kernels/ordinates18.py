@@ -82,7 +82,7 @@ def _landing(cell, offs, n, k, i, j):
 
 @nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
 def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell, pending, k, i, j, scratch,
-          g, held_at, held, tallies):
+          g, held_at, held, tallies, ahead):
     """Cell (k, i, j) sends its packets above ``w_min`` (module docstring). Row g of
     ``scratch`` (float64 (groups, 128)) is the caller's: what leaves for each neighbour (power,
     then power times anisotropy) in columns 0-35 (indexed, not sliced: a view made per cell
@@ -90,8 +90,9 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
     number of parts it holds (module docstring) in ``held_at`` (int64 (groups, capacity, 3): the
     landing cell's row of W, the ordinate, the landing row k n_u + i) and ``held`` (float64
     (groups, capacity, 2): power and power times anisotropy, after the landing cell's half step).
-    ``tallies`` = (reflected, transmitted, side escaped, absorbed, packets sent) so far; returns
-    them updated. A skipped cell (``cell`` < 0) holds none."""
+    Only the ordinates marked ``ahead`` (bool (18,)) are sent. ``tallies`` = (reflected,
+    transmitted, side escaped, absorbed, packets sent) so far; returns them updated. A skipped
+    cell (``cell`` < 0) holds none."""
     c = cell[k, i, j]
     if c < 0:
         return tallies
@@ -102,7 +103,7 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
     sending = False
     for o in range(M18):
         w = W[c, o]
-        if w <= w_min:
+        if w <= w_min or not ahead[o]:
             if w > 0.0 and pending[k, i] == 0:
                 pending[k, i] = 1
             continue
@@ -159,16 +160,18 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
             er *= thc
             if pending[k2, i2] == 0:     # written once a sweep: the other group reads this line
                 pending[k2, i2] = 1
+        # the lobe's 18 shares and moments, each a contiguous row of the table: the loops
+        # vectorise
         for n in range(M18):
-            s0 = table[o, t, n, 0]
-            m0 = table[o, t, n, 1]
-            share = s0 + lam * (table[o, t + 1, n, 0] - s0)
-            moment = m0 + lam * (table[o, t + 1, n, 1] - m0)
-            scratch[g, n] += es * share
-            scratch[g, M18 + n] += es * moment
-            if c2 >= 0:
-                W[c2, n] += er * share
-                Wa[c2, n] += er * moment
+            scratch[g, 40 + n] = table[o, t, 0, n] + lam * (table[o, t + 1, 0, n] - table[o, t, 0, n])
+            scratch[g, 60 + n] = table[o, t, 1, n] + lam * (table[o, t + 1, 1, n] - table[o, t, 1, n])
+        for n in range(M18):
+            scratch[g, n] += es * scratch[g, 40 + n]
+            scratch[g, M18 + n] += es * scratch[g, 60 + n]
+        if c2 >= 0:
+            for n in range(M18):
+                W[c2, n] += er * scratch[g, 40 + n]
+                Wa[c2, n] += er * scratch[g, 60 + n]
     if sending:
         # what leaves for each neighbour, after the neighbour's half step
         for n in range(M18):
@@ -209,10 +212,12 @@ LAG = 3
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, forward_d,
-                      forward_u, forward_v, tally, cell, pending, edges, row_work, held_at, held):
+                      forward_u, forward_v, tally, cell, pending, edges, row_work, held_at, held, upwind):
     """One Gauss-Seidel sweep (module docstring): at each cell of a pending row, ordinate by
     ordinate, a packet above ``w_min`` is taken, its visit accumulated into (phi, F) and sent;
-    packets at or below it stay pending. ``table`` float32 (18, n_a, 18, 2): for a lobe HG_a about
+    packets at or below it stay pending, and with ``upwind`` so do those of the ordinates that
+    point back against the sweep's order (toward a cell it has passed; 9 of the 18): they wait,
+    gathering what else arrives, for a sweep in which they point ahead. ``table`` float32 (18, n_a, 2, 18): for a lobe HG_a about
     e_o at a = linspace(-1, 1, n_a), the share that falls in ordinate n's part of the sphere and
     that share times its mean cosine about e_n (walk.ordinate18_table); interpolated linearly in
     a. ``offs`` int64 (18, 3). ``cell``: each cell's row of W, -1 where skipped. ``edges`` int64 (groups + 1,): the groups' rows, as positions in
@@ -227,6 +232,14 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
     # line
     scratch = np.zeros((groups, 128))
     part = np.zeros((5, n0 * n1))
+    ahead = np.ones(M18, np.bool_)
+    if upwind:
+        sd = 1 if forward_d else -1
+        su = 1 if forward_u else -1
+        sv = 1 if forward_v else -1
+        for o in range(M18):
+            a, b, c = offs[o, 0] * sd, offs[o, 1] * su, offs[o, 2] * sv
+            ahead[o] = a > 0 or (a == 0 and (b > 0 or (b == 0 and c > 0)))
     for step in range(n0 + LAG * (groups - 1)):
         for g in nb.prange(groups):
             s = step - LAG * g
@@ -241,7 +254,7 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
                         t = _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell,
-                                  pending, k, i, j, scratch, g, held_at, held, t)
+                                  pending, k, i, j, scratch, g, held_at, held, t, ahead)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
