@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import popvol
-from popvol.kernels.ordinates18 import ordinates18_sweep
+from popvol.kernels.ordinates18 import UNKNOWN, ordinates18_sweep
 from popvol.scene import apply_overrides
 from popvol.walk import (ORDINATES18, medium_factors, ordinate18_table, scatter_factor, walk_box)
 import twins
@@ -90,7 +90,8 @@ def test_kernel_matches_its_twin(upwind):
     for order in ((True, True, True), (False, False, False), (True, False, True)):
         pending[:] = 1
         sent, held = ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, np.float32(inv_area),
-                                       phi, F, np.float32(0.0), *order, tally, cell, pending,
+                                       phi, F, np.float32(0.0), *order, tally, cell,
+                                       np.full((cell.size, 18), UNKNOWN, np.int32), pending,
                                        np.array([0, shape[1]]), np.zeros(shape[1]), np.zeros((1, 1, 3), np.int64),
                                        np.zeros((1, 1, 2)), upwind)
         twin_sent = twins.ordinates18_sweep(tW, tWa, Th, Sh, Dh, inv_area, tphi, tF, 0.0, *order, ttally,

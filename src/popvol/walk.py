@@ -396,15 +396,23 @@ def inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally) -> tuple[float, f
     return absorbed, float(np.sum(injection, dtype=np.float64))
 
 
+def sweep_order(it: int) -> tuple[bool, bool, bool]:
+    """Whether sweep ``it`` of an ordinates walk runs forward along d, u and v: every sweep
+    reverses all three, so with upwind sweeps every ordinate is sent every second sweep
+    (docs/METHOD.md, "Six ordinates")."""
+    forward = it % 2 == 0
+    return forward, forward, forward
+
+
 def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
                    skip=None) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
     domain's shape, :func:`scatter_factor`), every order of scattering, by thresholded
     Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
     in the mean pending power): the injected light enters ordinate +d; the sweeps alternate +d
-    / -d every sweep, the order along u every second and along v every fourth, and each sends
-    only the ordinates that point ahead in its order (upwind; the others wait for a sweep
-    their way). Returns (sweeps, power in flight, power the injection's half step absorbed, packets sent).
+    / -d, and along u and v with it, every sweep (:func:`sweep_order`), and each sends only
+    the ordinates that point ahead in its order (upwind; the others wait for a sweep their
+    way). Returns (sweeps, power in flight, power the injection's half step absorbed, packets sent).
     Accumulates into phi, flux (float32 (3,) + shape, the first moment in the domain's frame)
     and tally, except in the ``skip`` cells (:func:`skipped_cells`; None: none), which light
     crosses a run at a time (kernels.cells.skip_runs, int16 (6,) + shape) and which hold no
@@ -437,9 +445,10 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
 
     def one_sweep(it, w_min):
         # the rows cut into one group per thread by the work each row did in the sweep before
-        edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, lanes)
-        sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), it % 2 == 0,
-                                  it % 4 < 2, it % 8 < 4, tally, edges, row_work, cell, runs, pending, upwind=True)
+        fd, fu, fv = sweep_order(it)
+        edges = row_groups(row_work, shape[0] * shape[2], fu, lanes)
+        sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), fd,
+                                  fu, fv, tally, edges, row_work, cell, runs, pending, upwind=True)
         return K.total_energy(W.reshape(m, 1, 12)), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * n, injected, progress)
@@ -451,8 +460,8 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     """The eighteen-ordinate walk (kernels/ordinates18.py) of :func:`walk_box`: as
     :func:`walk_ordinates` with a direction per face and per edge of the lattice, visiting
     every cell of a pending row that is not skipped. The injected light enters ordinate +d of
-    slice 0; the sweeps alternate +d / -d every sweep, the order along u every second and along
-    v every fourth, each sending only the ordinates that point ahead in its order (upwind). The
+    slice 0; the sweeps reverse their order along d, u and v every sweep (:func:`sweep_order`),
+    each sending only the ordinates that point ahead in its order (upwind). The
     rows are cut into GROUPS18 groups that sweep as a pipeline (:func:`row_groups`, by the
     packets each row sent in the sweep before), whatever the number of threads. Returns
     (sweeps, power in flight, power the injection's half step absorbed, packets sent);
@@ -475,9 +484,9 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
             dst = tuple(slice(max(x, 0), shape[a] - max(-x, 0)) for a, x in enumerate(off))
             ahead[src] = skip[dst]
             held += int(np.count_nonzero(ahead & kept))
-    check_memory(2 * 18 * 4 * m + 4 * 3 * n + 4 * n + GROUPS18 * held * 40 + ORDINATE18_TABLE_BYTES,
+    check_memory(3 * 18 * 4 * m + 4 * 3 * n + 4 * n + GROUPS18 * held * 40 + ORDINATE18_TABLE_BYTES,
                  "experimental.ordinates (18) with method.resolution",
-                 f"the 18 ordinates of a {'x'.join(map(str, shape))} domain (power and moment)")
+                 f"the 18 ordinates of a {'x'.join(map(str, shape))} domain (power, moment and landing cells)")
     cell = np.full(shape, -1, np.int32)
     cell[kept] = np.arange(m, dtype=np.int32)
     table = ordinate18_table()
@@ -485,6 +494,7 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     Th2, Dh2, Sh2 = (np.power(x, root2).astype(np.float32) for x in (Th, Dh, Sh))
     W = np.zeros((m, 18), np.float32)
     Wa = np.zeros_like(W)
+    landing = np.full((m, 18), KO18.UNKNOWN, np.int32)
     pending = np.zeros(shape[:2], np.uint8)
     absorbed, injected = inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally)
     flat = W.reshape(m, 1, 18)
@@ -493,10 +503,12 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     held_parts = np.zeros((GROUPS18, held, 2))
 
     def one_sweep(it, w_min):
-        edges = row_groups(row_work, shape[0] * shape[2], it % 4 < 2, GROUPS18)
+        fd, fu, fv = sweep_order(it)
+        edges = row_groups(row_work, shape[0] * shape[2], fu, GROUPS18)
         sent, held = KO18.ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, inv_area, phi,
-                                            flux, np.float32(w_min), it % 2 == 0, it % 4 < 2, it % 8 < 4, tally,
-                                            cell, pending, edges, row_work, held_at, held_parts, upwind=True)
+                                            flux, np.float32(w_min), fd, fu, fv, tally,
+                                            cell, landing, pending, edges, row_work, held_at, held_parts,
+                                            upwind=True)
         HELD18[0] += held
         return K.total_energy(flat), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n, injected,

@@ -67,22 +67,50 @@ from .reduction import add_row_parts
 M18 = 18
 
 
+#: ``landing`` codes (:func:`_landing`): not yet found, and the three ways out of the domain
+UNKNOWN, REFLECTED, TRANSMITTED, SIDE = -4, -1, -2, -3
+
+
 @nb.njit(inline="always", cache=True)
-def _landing(cell, offs, n, k, i, j):
-    """The cell a part sent along ordinate n from a neighbour (k, i, j) of it lands in: (k, i,
-    j) itself, or, where that is skipped, the first cell not skipped along offs[n] after it, or
-    the first position outside the domain."""
+def _landing(cell, offs, landing, c, n, k, i, j):
+    """The cell a part sent along ordinate n from cell c lands in, given its neighbour (k, i, j)
+    along it: (k, i, j) itself, or, where that is skipped, the first cell not skipped along
+    offs[n] after it, or the first position outside the domain. The run of skipped cells is
+    walked once per (c, n) and remembered in ``landing`` (int32 (m, 18): the landing cell's
+    position (k n_u + i) n_v + j, or REFLECTED, TRANSMITTED or SIDE where the part leaves through
+    the face k = 0, the far face or a lateral one, UNKNOWN until walked; row c is written by
+    the group that sweeps c only)."""
     n0, n1, n2 = cell.shape
-    while 0 <= k < n0 and 0 <= i < n1 and 0 <= j < n2 and cell[k, i, j] < 0:
-        k += offs[n, 0]
-        i += offs[n, 1]
-        j += offs[n, 2]
-    return k, i, j
+    if not (0 <= k < n0 and 0 <= i < n1 and 0 <= j < n2 and cell[k, i, j] < 0):
+        return k, i, j
+    p = landing[c, n]
+    if p == UNKNOWN:
+        while 0 <= k < n0 and 0 <= i < n1 and 0 <= j < n2 and cell[k, i, j] < 0:
+            k += offs[n, 0]
+            i += offs[n, 1]
+            j += offs[n, 2]
+        if k < 0:
+            p = REFLECTED
+        elif k >= n0:
+            p = TRANSMITTED
+        elif i < 0 or i >= n1 or j < 0 or j >= n2:
+            p = SIDE
+        else:
+            p = (k * n1 + i) * n2 + j
+        landing[c, n] = p
+        return k, i, j
+    if p == REFLECTED:
+        return -1, 0, 0
+    if p == TRANSMITTED:
+        return n0, 0, 0
+    if p == SIDE:
+        return 0, -1, 0
+    return p // (n1 * n2), (p // n2) % n1, p % n2
 
 
 @nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
-def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell, pending, k, i, j, scratch,
-          g, held_at, held, tallies, ahead):
+def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell, landing, pending, k, i, j,
+          scratch, g, held_at, held, tallies, ahead):
     """Cell (k, i, j) sends its packets above ``w_min`` (module docstring). Row g of
     ``scratch`` (float64 (groups, 128)) is the caller's: what leaves for each neighbour (power,
     then power times anisotropy) in columns 0-35 (indexed, not sliced: a view made per cell
@@ -178,7 +206,7 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
             e = scratch[g, n]
             if e <= 0.0:
                 continue
-            k3, i3, j3 = _landing(cell, offs, n, k + offs[n, 0], i + offs[n, 1], j + offs[n, 2])
+            k3, i3, j3 = _landing(cell, offs, landing, c, n, k + offs[n, 0], i + offs[n, 1], j + offs[n, 2])
             if k3 < 0:
                 refl += e
             elif k3 >= n0:
@@ -212,20 +240,23 @@ LAG = 3
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, forward_d,
-                      forward_u, forward_v, tally, cell, pending, edges, row_work, held_at, held, upwind):
+                      forward_u, forward_v, tally, cell, landing, pending, edges, row_work, held_at, held, upwind):
     """One Gauss-Seidel sweep (module docstring): at each cell of a pending row, ordinate by
     ordinate, a packet above ``w_min`` is taken, its visit accumulated into (phi, F) and sent;
-    packets at or below it stay pending, and with ``upwind`` so do those of the ordinates that
-    point back against the sweep's order (toward a cell it has passed; 9 of the 18): they wait,
-    gathering what else arrives, for a sweep in which they point ahead. ``table`` float32 (18, n_a, 2, 18): for a lobe HG_a about
-    e_o at a = linspace(-1, 1, n_a), the share that falls in ordinate n's part of the sphere and
-    that share times its mean cosine about e_n (walk.ordinate18_table); interpolated linearly in
-    a. ``offs`` int64 (18, 3). ``cell``: each cell's row of W, -1 where skipped. ``edges`` int64 (groups + 1,): the groups' rows, as positions in
-    the sweep's order from 0 to n_u (one group: row by row). ``row_work`` float64 (n_u,)
-    receives the packets each row sent, for the next sweep's cut. ``held_at`` int64 (groups,
-    capacity, 3) and ``held`` float64 (groups, capacity, 2): room for the parts held to the
-    sweep's end (module docstring; capacity 4 m is enough: at most one per (d, u) edge ordinate
-    and cell visit, with the neighbour along it skipped). Returns (packets sent, parts held)."""
+    packets at or below it stay pending, and with ``upwind`` so do those of the ordinates that point
+    back against the sweep's order (toward a cell it has passed; 9 of the 18): they wait, gathering
+    what else arrives, for a sweep in which they point ahead. ``table`` float32 (18, n_a, 2, 18):
+    for a lobe HG_a about e_o at a = linspace(-1, 1, n_a), the share that falls in ordinate n's part
+    of the sphere and that share times its mean cosine about e_n (walk.ordinate18_table);
+    interpolated linearly in a. ``offs`` int64 (18, 3). ``cell``: each cell's row of W, -1 where
+    skipped; ``landing`` int32 (m, 18), where each cell's parts land across the runs of skipped
+    cells (:func:`_landing`; UNKNOWN at first, kept from sweep to sweep). ``edges`` int64 (groups +
+    1,): the groups' rows, as positions in the sweep's order from 0 to n_u (one group: row by row).
+    ``row_work`` float64 (n_u,) receives the packets each row sent, for the next sweep's cut.
+    ``held_at`` int64 (groups, capacity, 3) and ``held`` float64 (groups, capacity, 2): room for the
+    parts held to the sweep's end (module docstring; capacity 4 m is enough: at most one per (d, u)
+    edge ordinate and cell visit, with the neighbour along it skipped). Returns (packets sent, parts
+    held)."""
     n0, n1, n2 = Th.shape
     groups = edges.shape[0] - 1
     # each group's scratch (_send's) in a row of its own, 1 kB apart: no two groups share a cache
@@ -254,7 +285,7 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
                         t = _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell,
-                                  pending, k, i, j, scratch, g, held_at, held, t, ahead)
+                                  landing, pending, k, i, j, scratch, g, held_at, held, t, ahead)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
