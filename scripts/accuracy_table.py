@@ -1,11 +1,11 @@
-"""Write docs/ACCURACY.md: the default method (six ordinates) and the one-lobe walk alone against
-Mitsuba 3 references on the accuracy suite, at 64, 128 and 256 cells, in the metric of ``popvol
-compare`` (with, for the notes, the one-lobe sweeps with their diffusion stage at every
-resolution, the default without the gathered last bounce at 64 and 128 cells, the one-lobe Jacobi
-wavefront at 128 and the binned one at 64); each row also against a noiseless reference,
-extrapolated from the reference's two halves (``metrics.extrapolated_relmse``), which the goal is
-held against. Run from the repository root, with ../shared beside the checkout (about 8 minutes
-on 2 cores once the references exist):
+"""Write docs/ACCURACY.md: the default method (eighteen ordinates) and the one-lobe walk alone
+against Mitsuba 3 references on the accuracy suite, at 64, 128 and 256 cells, in the metric of
+``popvol compare`` (with, for the notes, the one-lobe sweeps with their diffusion stage and the
+six-ordinate walk at every resolution, the default without the gathered last bounce at 64 and 128
+cells, the one-lobe Jacobi wavefront at 128 and the binned one at 64); each row also against a
+noiseless reference, extrapolated from the reference's two halves
+(``metrics.extrapolated_relmse``), which the goal is held against. Run from the repository root,
+with ../shared beside the checkout (about 10 minutes on 2 cores once the references exist):
 
     python scripts/accuracy_table.py [--spp 4096] [--variant llvm_ad_rgb]
 
@@ -72,15 +72,15 @@ GALLERY = {
 #: Mitsuba ~10x more per sample than the others; the haze is thin and converges fast
 SPP_SCALE = {"smoke1": 0.125, "wdas_density_10": 0.125, "haze": 0.5}
 RESOLUTIONS = (64, 128, 256)
-#: (label, method overrides, resolutions): the default (six ordinates) and the one-lobe walk alone
-#: at every resolution; for the notes, the one-lobe sweeps with their diffusion stage (the default
-#: up to the commit that made six ordinates the default) at every resolution, the default without
-#: the gathered last bounce at 64 and 128 cells, the one-lobe Jacobi wavefront at 128 and the
-#: binned one at 64 (docs/METHOD.md, "Six ordinates", "Gathered last bounce", "The schedule", "The
-#: merge itself"), and the eighteen-ordinate walk at every resolution ("Eighteen ordinates")
+#: (label, method overrides, resolutions): the default (eighteen ordinates) and the one-lobe walk
+#: alone at every resolution; for the notes, the one-lobe sweeps with their diffusion stage at
+#: every resolution, the default without the gathered last bounce at 64 and 128 cells, the one-lobe
+#: Jacobi wavefront at 128 and the binned one at 64 (docs/METHOD.md, "Six ordinates", "Gathered
+#: last bounce", "The schedule", "The merge itself"), and the six-ordinate walk at every resolution
+#: ("Six ordinates")
 VARIANTS = (("default", {}, RESOLUTIONS), ("walk alone", {"solver": "sweep", "isotropic": "walk"}, RESOLUTIONS),
             ("one-lobe sweeps", {"solver": "sweep"}, RESOLUTIONS),
-            ("eighteen ordinates", {"ordinates": 18}, RESOLUTIONS),
+            ("six ordinates", {"ordinates": 6}, RESOLUTIONS),
             ("no gather", {"gather": 0}, (64, 128)),
             ("jacobi", {"solver": "jacobi"}, (128,)), ("binned", {"solver": "binned"}, (64,)))
 GOAL = {"relmse": 0.03, "band": 0.05, "drift": 0.02}
@@ -183,7 +183,7 @@ def summary_row(key: str, s: dict) -> str:
     rows = s["rows"]
     d = [rows["default", n] for n in RESOLUTIONS]
     o = [rows["one-lobe sweeps", n] for n in RESOLUTIONS]
-    e = [rows["eighteen ordinates", n] for n in RESOLUTIONS]
+    e = [rows["six ordinates", n] for n in RESOLUTIONS]
     b = d[-1]["brightness_bands"]
     observed = "n/a" if s["observed"] is None else f"{s['observed']:.3f}"
     return (f"| {key} | {s['noise']:.3f} / {observed} | " + " / ".join(f"{r['relmse']:.3f}" for r in d)
@@ -296,18 +296,18 @@ def main():
             "`metrics.extrapolated_relmse`; the noise that fit sees, c / P, is the second figure of the "
             "summary's reference noise, beside the estimate from the passes' variance). A sky's or an HDR map's domains keep "
             "`environment_resolution` = 64 at every row. The default walks a sun's and an "
-            "environment's light with six ordinates, every order, with no diffusion stage (`solver = "
-            "\"ordinates\"`, docs/METHOD.md \"Six ordinates\"; point lights sweep one lobe with the "
+            "environment's light with eighteen ordinates, every order, with no diffusion stage (`solver = "
+            "\"ordinates\"`, docs/METHOD.md \"Six ordinates\", \"Eighteen ordinates\"; point lights sweep one lobe with the "
             "diffusion stage) and gathers the last scattering (`gather = 64`, docs/METHOD.md "
             "\"Gathered last bounce\"), and so do the variants but the one without it. Beside the "
             "default: the one-lobe walk alone (`solver = \"sweep\"`, `isotropic = \"walk\"`: the "
             "papers' POP) and the one-lobe sweeps with their diffusion stage (`solver = \"sweep\"`, "
-            "the default until six ordinates became it) at every resolution, the default without the "
+            "the default before the ordinates' walks) at every resolution, the default without the "
             "gather (`gather = 0`, the lobes light the camera) at 64 and 128 cells, the one-lobe "
             "Jacobi wavefront (`solver = \"jacobi\"`) at 128 cells and the binned wavefront (`solver = "
             "\"binned\"`, docs/METHOD.md \"The merge itself\") at 64 (both with the diffusion "
-            "stage), and the eighteen-ordinate walk (`ordinates = 18`, docs/METHOD.md \"Eighteen "
-            "ordinates\") at every resolution, its relMSE against a noiseless reference in the summary; "
+            "stage), and the six-ordinate walk (`ordinates = 6`, the default before eighteen, "
+            "docs/METHOD.md \"Six ordinates\") at every resolution, its relMSE against a noiseless reference in the summary; "
             "the other `[experimental]` variants are measured in "
             "[ACCURACY_NOTES.md](ACCURACY_NOTES.md) and docs/METHOD.md.", "",
             f"The goal (#11): relMSE <= {GOAL['relmse']} (against a noiseless reference), every band within "
@@ -318,7 +318,7 @@ def main():
             "noiseless reference | dim / mid / bright at 256 | "
             "largest band move 128 -> 256 | walk alone, relMSE at 128 | one-lobe sweeps, at 64 / 128 / 256 "
             "(brightness at 128) | no gather, at 128 (brightness) | Jacobi, at 128 | binned, at 64 | "
-            "eighteen ordinates, against a noiseless reference at 64 / 128 / 256 (brightness at 128) | goal met |",
+            "six ordinates, against a noiseless reference at 64 / 128 / 256 (brightness at 128) | goal met |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     made = f"_Generated in {time.perf_counter() - t_all:.0f} s._"
     if args.only:

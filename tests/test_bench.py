@@ -13,7 +13,7 @@ from popvol import bench
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_VOLUME = REPO.parent / "shared" / "data" / "volumes" / "npz" / bench.WDAS_VOLUME
-WDAS_ROWS = ("wdas_sun", "wdas_sun_lobes", "wdas_sun_sweep", "wdas_sun_walk", "wdas_sun_18", "wdas_sun_sky")
+WDAS_ROWS = ("wdas_sun", "wdas_sun_lobes", "wdas_sun_sweep", "wdas_sun_walk", "wdas_sun_6", "wdas_sun_sky")
 
 
 def figures(node):
@@ -158,8 +158,8 @@ def test_quick_bench_runs_every_scene(tmp_path):
         assert row["image"] == [160, 90]
         assert name in table
     assert res["scenes"]["wdas_sun_sky"]["domains"] == 9
-    assert res["scenes"]["wdas_sun"]["method"].startswith("ordinates (6): ")
-    assert res["scenes"]["wdas_sun_18"]["method"].startswith("ordinates (18): ")
+    assert res["scenes"]["wdas_sun"]["method"].startswith("ordinates (18): ")
+    assert res["scenes"]["wdas_sun_6"]["method"].startswith("ordinates (6): ")
     assert res["scenes"]["wdas_sun_sweep"]["method"] == "sweep: moment + poisson + diffusion, gather 64"
     assert res["scenes"]["wdas_sun_walk"]["method"] == "sweep: moment + poisson + walk, gather 64"
     assert res["scenes"]["wdas_sun_lobes"]["method"].endswith("gather 0")

@@ -195,7 +195,7 @@ def test_bench_quick_writes_well_formed_figures(tmp_path):
                 "render_camera_samples_per_s"):
         assert prop[key]["min"] > 0, key
     demo = res["scenes"]["demo"]
-    assert demo["seconds"]["total"]["min"] > 0 and demo["residual"] <= Method().tolerance and demo["method"].startswith("ordinates (6): moment")
+    assert demo["seconds"]["total"]["min"] > 0 and demo["residual"] <= Method().tolerance and demo["method"].startswith("ordinates (18): moment")
     assert set(demo["seconds"]) >= {"load", "resample", "propagate", "diffusion", "fields", "render", "total"}
     # every domain of the demo sweeps and sends, thousands of cells a sweep (a sweep in which no
     # cell passes the Southwell threshold is followed by one in which every pending cell sends)

@@ -190,14 +190,16 @@ def test_fields_do_not_depend_on_the_thread_count(air):
     assert (walk.HELD18[0] > held) == air          # the domain in air does hold parts
 
 
-def test_other_counts_of_ordinates_are_refused():
-    """experimental.ordinates takes 6 or 18, and 18 only with the "ordinates" solver: anything
-    else is a one-line error naming the key."""
+def test_other_counts_of_ordinates_are_refused_and_other_solvers_ignore_the_count():
+    """experimental.ordinates takes 6 or 18 (the default): anything else is a one-line error
+    naming the key. The one-lobe solvers do not read it: the same fields with 6 and 18."""
+    assert popvol.load_scene(None).method.ordinates == 18
     with pytest.raises(popvol.PopvolError, match=r"experimental\.ordinates = 12 must be 6 or 18") as e:
         popvol.load_scene(None, ordinates=12)
     assert "\n" not in str(e.value)
-    with pytest.raises(popvol.PopvolError, match=r"experimental\.ordinates = 18 needs experimental\.solver"):
-        popvol.load_scene(None, ordinates=18, solver="sweep")
+    six, eighteen = (popvol.solve(popvol.load_scene(None, ordinates=n, solver="sweep", resolution=16))
+                     for n in (6, 18))
+    np.testing.assert_array_equal(six.domains[0].result.phi, eighteen.domains[0].result.phi)
 
 
 def cloud_in_air(h=0.05):

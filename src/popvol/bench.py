@@ -10,13 +10,13 @@ compiles the kernels and fills the caches.
   (pixels x spp) per second at 640x360 on the same clouds (the ray march, without the gather);
 - scenes, end to end, per stage (load, resample, propagate, diffusion, fields, render, total):
   the built-in demo, the WDAS cloud under the sun (default method, without the gathered last
-  bounce, with the one-lobe sweeps and their diffusion stage, and the one-lobe walk alone) and
-  under sun + 8-direction sky, and the procedural field of small
-  cumulus under the sun at 256 cells and lit by a point light inside it at 128 and 256 cells
-  (96x64); the render stage
-  includes the gather. Beside them the sweeps' work rate: cells that sent a packet per second of the
-  propagate stage (a cell that sends splits its packet six ways; with six ordinates, packets
-  sent, up to six per cell; the throughput rows count every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
+  bounce, with six ordinates, with the one-lobe sweeps and their diffusion stage, and the
+  one-lobe walk alone) and under sun + 8-direction sky, and the procedural field of small
+  cumulus under the sun at 256 cells (with eighteen and six ordinates) and lit by a point light
+  inside it at 128 and 256 cells (96x64); the render stage includes the gather. Beside them the
+  sweeps' work rate per second of the propagate stage: with ordinates, packets sent (up to 18
+  or 6 per cell and sweep); with one lobe, cells that sent a packet (the throughput rows count
+  every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
   (``popvol/bench_scenes``) and name their volume by file name only; it is looked up in the
   data folder (:func:`find_data`).
   A scene whose volume is missing or unreadable is reported as skipped, with the reason.
@@ -74,15 +74,15 @@ SCENES = {
     "wdas_sun_walk": ("wdas_sun.toml", {"solver": "sweep", "isotropic": "walk"},
                       {"width": 160, "height": 90, "resolution": 64},
                       "WDAS cloud under the sun, the one-lobe walk alone (solver = sweep, isotropic = walk)"),
-    "wdas_sun_18": ("wdas_sun.toml", {"ordinates": 18}, {"width": 160, "height": 90, "resolution": 64},
-                    "WDAS cloud under the sun, eighteen ordinates (ordinates = 18)"),
+    "wdas_sun_6": ("wdas_sun.toml", {"ordinates": 6}, {"width": 160, "height": 90, "resolution": 64},
+                   "WDAS cloud under the sun, six ordinates (ordinates = 6)"),
     "wdas_sun_sky": ("wdas_sun_sky.toml", {},
                      {"width": 160, "height": 90, "resolution": 64, "environment_resolution": 32},
                      "WDAS cloud under sun + 8-direction sky (9 domains)"),
     "field_sun_256": ("field_sun.toml", {"resolution": 256}, {"resolution": 48},
                       "procedural cumulus field under the sun at 256 cells"),
-    "field_sun_256_18": ("field_sun.toml", {"resolution": 256, "ordinates": 18}, {"resolution": 48},
-                         "procedural cumulus field under the sun at 256 cells, eighteen ordinates"),
+    "field_sun_256_6": ("field_sun.toml", {"resolution": 256, "ordinates": 6}, {"resolution": 48},
+                        "procedural cumulus field under the sun at 256 cells, six ordinates"),
     "field_point": ("field_point.toml", {}, {"resolution": 32},
                     "procedural cumulus field lit by a point light inside it (full-sphere domain)"),
     "field_point_256": ("field_point.toml", {"resolution": 256}, {"resolution": 48},

@@ -125,11 +125,12 @@ KNOBS: tuple[Knob, ...] = (
          "fixed anisotropy bins instead of one merged lobe (linear in the light, so the answer does "
          "not depend on the schedule; 5-40x slower). Point lights always sweep one lobe.",
          experimental=True),
-    Knob("ordinates", 6, (6, 18), "Directions of `solver = \"ordinates\"`: 6 or 18.",
-         "6: one lobe per face of the lattice (+-d, +-u, +-v). 18: one per face and per edge, so "
-         "that light scattered 45 degrees off its way goes on diagonally instead of sideways "
-         "(docs/METHOD.md, \"Eighteen ordinates\"): closer to Mitsuba on sunlit clouds, 2-3 "
-         "times as long to walk.", experimental=True, allowed_text="6 or 18"),
+    Knob("ordinates", 18, (6, 18), "Directions of `solver = \"ordinates\"`: 6 or 18.",
+         "18: one lobe per face and per edge of the lattice, so that light scattered 45 degrees off "
+         "its way goes on diagonally (docs/METHOD.md, \"Eighteen ordinates\"). 6: one per face "
+         "(+-d, +-u, +-v), light scattered 45-135 degrees goes exactly sideways: about half the "
+         "time to walk, further from Mitsuba on sunlit clouds (docs/ACCURACY.md). The other "
+         "solvers ignore it.", experimental=True, allowed_text="6 or 18"),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
          "(the paper's rule, with a one-lobe `solver` only).", experimental=True),
@@ -208,9 +209,6 @@ class _MethodBase:
             setattr(self, k.name, k.check(getattr(self, k.name), src))
         if self.ordinates not in (6, 18):
             raise PopvolError(f"{src}: experimental.ordinates = {self.ordinates} must be 6 or 18")
-        if self.ordinates != 6 and self.solver != "ordinates":
-            raise PopvolError(f"{src}: experimental.ordinates = {self.ordinates} needs experimental.solver = "
-                              f"'ordinates' (the default), not {self.solver!r}")
         if self.solver == "ordinates" and self.rule != "moment":
             raise PopvolError(f"{src}: experimental.rule = {self.rule!r} needs experimental.solver = 'sweep', "
                               "'jacobi' or 'binned' (the default, 'ordinates', takes rule = 'moment' only: its "
