@@ -8,9 +8,9 @@ a. Gauss-Seidel sweeps along the principal ordinate (kernels/propagation.py for 
 domain, kernels/spherical.py for a point light's) or a Jacobi wavefront repeat this until the
 power still in flight is below the tolerance; the experimental binned wavefront
 (kernels/binned.py) keeps each cell's light in fixed anisotropy bins instead of one merged lobe.
-The six-ordinate walk (kernels/ordinates.py, by sweeps; the default for a sun's and an
-environment's light) keeps one lobe per lattice direction instead, so that light sent sideways
-keeps going sideways, and walks every order. With the one-lobe walks' diffusion stage, packets
+The ordinates' walks (by sweeps: kernels/ordinates18.py, eighteen directions, the default for a
+sun's and an environment's light, and kernels/ordinates.py, six) keep one lobe per lattice
+direction instead, so that light sent sideways keeps going sideways, and walk every order. With the one-lobe walks' diffusion stage, packets
 whose lobe has spread leave the walk (docs/METHOD.md, "Hand-over").
 """
 from __future__ import annotations

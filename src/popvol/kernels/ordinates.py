@@ -1,5 +1,6 @@
 """Numba kernel of the six-ordinate walk (docs/METHOD.md, "Six ordinates"; experimental.solver =
-"ordinates", the default for a sun's and an environment's light).
+"ordinates" with experimental.ordinates = 6; the eighteen-ordinate walk of kernels/ordinates18.py
+is built on it).
 
 The sweeps, the Jacobi and the binned wavefronts hold one lobe per cell about the domain's axis
 d: a part sent sideways is merged back into a lobe about d at the next cell, so light that moves

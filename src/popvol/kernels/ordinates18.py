@@ -1,6 +1,7 @@
 """Numba kernel of the eighteen-ordinate walk (docs/METHOD.md, "Eighteen ordinates";
-experimental.ordinates = 18): the six-ordinate walk of kernels/ordinates.py with a direction per
-face and per edge of the cube lattice.
+experimental.ordinates = 18, the default for a sun's and an environment's light): the
+six-ordinate walk of kernels/ordinates.py with a direction per face and per edge of the cube
+lattice.
 
 A cell holds one pending packet per ordinate o = 0..17, a lobe HG_a about its direction e_o
 (walk.ORDINATES18: the six faces +-d, +-u, +-v, then the twelve edges (+-1, +-1, 0) / sqrt 2 and
