@@ -686,6 +686,19 @@ def test_a_missing_volume_file_names_the_scene_and_the_field(tmp_path, capsys, n
     cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], f"{scene}: {field}: ", *words)
 
 
+@pytest.mark.parametrize("file, words", [('"nope.exr"', ["environment map", "nope.exr", "not found"]),
+                                         ('"."', ["environment map", "is a folder"]),
+                                         ('"bad.exr"', ["bad.exr", "not a readable OpenEXR file"]),
+                                         ('"bad.png"', ["bad.png", "convert .png"])])
+def test_a_missing_environment_map_names_the_scene_and_the_field(tmp_path, capsys, no_solve, file, words):
+    """A missing, unreadable or foreign environment map: one line naming the scene, the field
+    and the file."""
+    for bad in ("bad.exr", "bad.png"):
+        (tmp_path / bad).write_text("not an image")
+    scene = toml_scene(tmp_path, f'[medium]\ntype = "procedural"\n[[lights]]\ntype = "envmap"\nfile = {file}\n')
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "a.png"], f"{scene}: lights[0].file: ", *words)
+
+
 def test_rgba_exr_is_read_as_its_rgb(tmp_path):
     """An EXR with an alpha channel (the OpenEXR binding groups it as "RGBA"): its RGB."""
     import OpenEXR

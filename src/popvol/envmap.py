@@ -82,22 +82,28 @@ def sky(zenith, horizon, ground=(0.0, 0.0, 0.0), height: int = 64, source: str =
     return EnvMap(rad.astype(np.float32), source)
 
 
-def load(path, scale=1.0, field: str = "scale") -> EnvMap:
+def load(path, scale=1.0, field: str = "scale", where: str = "") -> EnvMap:
     """A lat-long map from OpenEXR (.exr) or Radiance RGBE (.hdr, through OpenCV, the
-    ``hdr`` extra), times ``scale`` (1 or 3 numbers; ``field`` names it in messages)."""
+    ``hdr`` extra), times ``scale`` (1 or 3 numbers; ``field`` names it in messages). A file
+    that is missing or unreadable is a one-line PopvolError that begins with ``where`` (e.g.
+    "scene.toml: lights[0].file: ")."""
     from pathlib import Path
     from .io.images import read_exr
     path = Path(path)
     if not path.is_file():
-        raise PopvolError(f"{path}: environment map not found" if not Path(path).exists() else f"{path}: not a file")
+        raise PopvolError(f"{where}environment map {path} "
+                          + ("is a folder" if path.is_dir() else "not found" if not path.exists() else "is not a file"))
     suffix = path.suffix.lower()
-    if suffix == ".exr":
-        rad = read_exr(path)
-    elif suffix == ".hdr":
-        rad = _read_hdr(path)
-    else:
-        raise PopvolError(f"{path}: popvol reads environment maps as OpenEXR (.exr) or Radiance "
-                          f"(.hdr); convert {path.suffix or 'it'} to one of them")
+    try:
+        if suffix == ".exr":
+            rad = read_exr(path)
+        elif suffix == ".hdr":
+            rad = _read_hdr(path)
+        else:
+            raise PopvolError(f"{path}: popvol reads environment maps as OpenEXR (.exr) or Radiance "
+                              f"(.hdr); convert {path.suffix or 'it'} to one of them")
+    except PopvolError as e:
+        raise PopvolError(f"{where}{e}") from None
     rad = np.asarray(rad, np.float32)
     if rad.ndim == 3 and rad.shape[-1] == 3 and rad.size and np.all(np.isfinite(rad)) and rad.min() >= 0:
         scale = np.broadcast_to(np.asarray(scale, np.float64), (3,))

@@ -281,10 +281,10 @@ def _light(l, name: str, src: str, base: Path = Path(".")):
     k = check.integer(l.get("lights", 12), f"{name}.lights", src, 1, 256)
     if kind == "envmap":
         if "file" not in l:
-            raise PopvolError(f"{src}: {name}.file is required (an OpenEXR lat-long map)")
+            raise PopvolError(f"{src}: {name}.file is required (a lat-long map, OpenEXR or Radiance .hdr)")
         env = envmap.load(_path(l["file"], f"{name}.file", src, base),
                           check.power(l.get("scale", 1.0), f"{name}.scale", src, envmap.MAX_RADIANCE),
-                          field=f"{src}: {name}.scale")
+                          field=f"{src}: {name}.scale", where=f"{src}: {name}.file: ")
     else:
         rad = lambda key, default: check.power(l.get(key, default), f"{name}.{key}", src, envmap.MAX_RADIANCE)
         env = envmap.sky(rad("zenith", [0.2, 0.35, 0.8]), rad("horizon", [0.6, 0.7, 0.9]), rad("ground", 0.0),
