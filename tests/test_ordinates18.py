@@ -8,7 +8,8 @@ import pytest
 import popvol
 from popvol.kernels.ordinates18 import UNKNOWN, ordinates18_sweep
 from popvol.scene import apply_overrides
-from popvol.walk import (ORDINATES18, medium_factors, ordinate18_table, scatter_factor, walk_box)
+from popvol.walk import (ORDINATES18, medium_factors, ordinate18_table, ordinates_ahead, scatter_factor,
+                         walk_box)
 import twins
 
 
@@ -62,6 +63,18 @@ def small_domain(seed=0, shape=(4, 3, 4)):
     return Th, Dh, scatter_factor(sigma_s, h), h
 
 
+def test_ordinates_ahead_are_those_toward_later_cells():
+    """walk.ordinates_ahead, in every one of the 8 sweep orders, against the twin's rule (each
+    offset's cell compared with the sweep's order, a component at a time): 9 of the 18 point
+    ahead, and of two opposite ordinates exactly one."""
+    import itertools
+    for order in itertools.product((True, False), repeat=3):
+        got = ordinates_ahead(ORDINATES18, order)
+        want = [twins.sends_ahead(off, *order) for off in ORDINATES18]
+        np.testing.assert_array_equal(got, want)
+        assert got.sum() == 9 and not (got & ordinates_ahead(-ORDINATES18, order)).any()
+
+
 @pytest.mark.parametrize("upwind", [False, True])
 def test_kernel_matches_its_twin(upwind):
     """Row by row (one group), three sweeps (the second in the other direction along every
@@ -93,7 +106,8 @@ def test_kernel_matches_its_twin(upwind):
                                        phi, F, np.float32(0.0), *order, tally, cell,
                                        np.full((cell.size, 18), UNKNOWN, np.int32), pending,
                                        np.array([0, shape[1]]), np.zeros(shape[1]), np.zeros((1, 1, 3), np.int64),
-                                       np.zeros((1, 1, 2)), upwind)
+                                       np.zeros((1, 1, 2)),
+                                       ordinates_ahead(ORDINATES18, order) if upwind else np.ones(18, np.bool_))
         twin_sent = twins.ordinates18_sweep(tW, tWa, Th, Sh, Dh, inv_area, tphi, tF, 0.0, *order, ttally,
                                             upwind=upwind)
         assert sent == twin_sent and held == 0

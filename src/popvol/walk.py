@@ -404,6 +404,15 @@ def sweep_order(it: int) -> tuple[bool, bool, bool]:
     return forward, forward, forward
 
 
+def ordinates_ahead(offsets: np.ndarray, forward: tuple[bool, bool, bool]) -> np.ndarray:
+    """bool (n,): which of the ordinates ``offsets`` (int (n, 3), in cells along d, u, v) point
+    ahead in the order of a sweep that runs forward along each axis where ``forward`` says so
+    (toward a cell later in the order k, then i, then j): the ordinates an upwind sweep sends."""
+    along = np.asarray(offsets) * np.where(forward, 1, -1)
+    first = along[np.arange(len(along)), np.argmax(along != 0, axis=1)]     # first nonzero step
+    return first > 0
+
+
 def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
                    skip=None) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
@@ -448,7 +457,8 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         fd, fu, fv = sweep_order(it)
         edges = row_groups(row_work, shape[0] * shape[2], fu, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), fd,
-                                  fu, fv, tally, edges, row_work, cell, runs, pending, upwind=True)
+                                  fu, fv, tally, edges, row_work, cell, runs, pending,
+                                  ordinates_ahead(ORDINATES18[:6], (fd, fu, fv)))
         return K.total_energy(W.reshape(m, 1, 12)), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * n, injected, progress)
@@ -508,7 +518,7 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
         sent, held = KO18.ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, ORDINATES18, table, inv_area, phi,
                                             flux, np.float32(w_min), fd, fu, fv, tally,
                                             cell, landing, pending, edges, row_work, held_at, held_parts,
-                                            upwind=True)
+                                            ordinates_ahead(ORDINATES18, (fd, fu, fv)))
         HELD18[0] += held
         return K.total_energy(flat), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n, injected,

@@ -228,16 +228,17 @@ def _send(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, cell, runs, pending
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
-                    edges, row_work, cell, runs, pending, upwind):
+                    edges, row_work, cell, runs, pending, ahead):
     """One Gauss-Seidel sweep (module docstring): the cells in order of k, then i, then j,
     each increasing if its ``forward_*``, else decreasing; at each cell, ordinate by ordinate,
     a pending packet above ``w_min`` is taken, its visit accumulated into (phi, F), and sent,
     in place: what crosses to the next cell along its ordinate unscattered keeps its lobe, what
     scatters on the way is split to the six neighbours (module docstring). What leaves the
     domain is tallied (``tally``), as what the half steps absorb. Packets at or below ``w_min``
-    stay pending, and with ``upwind`` so do those of the ordinates that point back against the
-    sweep's order (toward cells it has passed): they wait, gathering what else arrives, for a
-    sweep in their own direction, in which they cross the domain at once rather than one cell.
+    stay pending, and so do those of the ordinates not marked ``ahead`` (bool (6,); an upwind
+    sweep marks those that point ahead in its order, walk.ordinates_ahead): the others wait,
+    gathering what else arrives, for a sweep in their own direction, in which they cross the
+    domain at once rather than one cell.
     Returns the number of packets sent.
 
     On threads as a pipeline: the rows, in the sweep's order, are cut into groups at ``edges``
@@ -263,11 +264,6 @@ def ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, F, w_min, forward_d
     part = np.zeros((5, n0 * n1))
     # each group's parts leaving a cell (_send), 12 of 24 slots: no two groups share a cache line
     out = np.zeros((groups, 24))
-    ahead = np.ones(6, np.bool_)
-    if upwind:
-        for o in range(6):
-            forward = (forward_d, forward_u, forward_v)[o // 2]
-            ahead[o] = (o % 2 == 0) == forward
     for step in range(n0 + groups - 1):
         for g in nb.prange(groups):
             s = step - g

@@ -241,12 +241,12 @@ LAG = 3
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, forward_d,
-                      forward_u, forward_v, tally, cell, landing, pending, edges, row_work, held_at, held, upwind):
+                      forward_u, forward_v, tally, cell, landing, pending, edges, row_work, held_at, held, ahead):
     """One Gauss-Seidel sweep (module docstring): at each cell of a pending row, ordinate by
     ordinate, a packet above ``w_min`` is taken, its visit accumulated into (phi, F) and sent;
-    packets at or below it stay pending, and with ``upwind`` so do those of the ordinates that point
-    back against the sweep's order (toward a cell it has passed; 9 of the 18): they wait, gathering
-    what else arrives, for a sweep in which they point ahead. ``table`` float32 (18, n_a, 2, 18):
+    packets at or below it stay pending, and so do those of the ordinates not marked ``ahead`` (bool
+    (18,); an upwind sweep marks the 9 that point ahead in its order, walk.ordinates_ahead): they
+    wait, gathering what else arrives, for a sweep in which they point ahead. ``table`` float32 (18, n_a, 2, 18):
     for a lobe HG_a about e_o at a = linspace(-1, 1, n_a), the share that falls in ordinate n's part
     of the sphere and that share times its mean cosine about e_n (walk.ordinate18_table);
     interpolated linearly in a. ``offs`` int64 (18, 3). ``cell``: each cell's row of W, -1 where
@@ -264,14 +264,6 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
     # line
     scratch = np.zeros((groups, 128))
     part = np.zeros((5, n0 * n1))
-    ahead = np.ones(M18, np.bool_)
-    if upwind:
-        sd = 1 if forward_d else -1
-        su = 1 if forward_u else -1
-        sv = 1 if forward_v else -1
-        for o in range(M18):
-            a, b, c = offs[o, 0] * sd, offs[o, 1] * su, offs[o, 2] * sv
-            ahead[o] = a > 0 or (a == 0 and (b > 0 or (b == 0 and c > 0)))
     for step in range(n0 + LAG * (groups - 1)):
         for g in nb.prange(groups):
             s = step - LAG * g
