@@ -606,7 +606,63 @@ def _bilinear_slice(buf, u, v):
             + fu * ((1 - fv) * buf[i1, j0] + fv * buf[i1, j1]))
 
 
-def gathered_source(scene, solution, dirs, weights, boundary=None):
+def _unscattered_lit(solution, l, g):
+    """(nx, ny, nz, 3): directional light l's unscattered lobe's weight, without its angular
+    factor: phi_dir (at most phi) times the light's power, summed over its field channels (the
+    part of :func:`_grid_lit` that is phi_dir f_hg(mu; g), :func:`walk_lobes`)."""
+    n_ch = solution.phi.shape[1]
+    out = 0.0
+    for c in range(n_ch):
+        p = solution.phi[l, c].astype(np.float64)
+        p_dir = np.where(p > 0, np.minimum(solution.direct[l, c], p), 0.0)
+        out = out + np.maximum(p_dir, 0.0)[..., None] * _power(solution, l, c, n_ch)
+    return out
+
+
+def default_sun(scene, solution):
+    """The light gathered apart (renderer.separated_sun, the rule written again): the directional
+    light with the most unscattered light, where g is the same everywhere (to 1e-6 of itself);
+    None without one."""
+    g = np.asarray(scene.medium.g, np.float64)
+    if np.ptp(g) > 1e-6 * abs(float(g.flat[0])):
+        return None
+    power = [0.0 if solution.is_point[l] else float(_unscattered_lit(solution, l, 0.0).sum())
+             for l in range(len(solution.is_point))]
+    return int(np.argmax(power)) if max(power, default=0.0) > 0 else None
+
+
+def _transport(q, sig, w, med, entering):
+    """The radiance L (nx, ny, nz, 3) reaching each voxel along w from the emission per unit
+    length q (nx, ny, nz, 3) through sigma_t ``sig``, slice by slice (:func:`gathered_source`)."""
+    a = int(np.argmax(np.abs(w)))
+    b, c = [k for k in range(3) if k != a]
+    ell = med.voxel_size[a] / abs(w[a])
+    ob, oc = -ell * w[b] / med.voxel_size[b], -ell * w[c] / med.voxel_size[c]
+    # the arrays with the sweep axis first and the other two in increasing order
+    q_s, sig_s = np.moveaxis(q, a, 0), np.moveaxis(sig, a, 0)
+    L = np.zeros(q_s.shape)
+    order = range(q_s.shape[0]) if w[a] > 0 else range(q_s.shape[0] - 1, -1, -1)
+    for step, s in enumerate(order):
+        prev = s - 1 if w[a] > 0 else s + 1
+        for p in range(q_s.shape[1]):
+            for r in range(q_s.shape[2]):
+                for ch in range(3):
+                    sv, qv = sig_s[s, p, r, ch], q_s[s, p, r, ch]
+                    u, v = p + ob, r + oc
+                    if step == 0:
+                        l_up, q_up, s_up, path = entering[ch], qv, sv, 0.5 * ell
+                    elif not (-0.5 <= u <= L.shape[1] - 0.5 and -0.5 <= v <= L.shape[2] - 0.5):
+                        l_up, q_up, s_up, path = entering[ch], 0.0, 0.0, ell    # from outside the grid
+                    else:
+                        l_up, q_up, s_up = (_bilinear_slice(f[prev, :, :, ch], u, v) for f in (L, q_s, sig_s))
+                        path = ell
+                    sbar = 0.5 * (s_up + sv)
+                    weight = path if sbar * path < 1e-12 else -np.expm1(-sbar * path) / sbar
+                    L[s, p, r, ch] = l_up * np.exp(-sbar * path) + 0.5 * (q_up + qv) * weight
+    return np.moveaxis(L, 0, a)
+
+
+def gathered_source(scene, solution, dirs, weights, boundary=None, sun="default"):
     """Twin of kernels.gather.gathered_source for directional lights (the point lights' walk
     lobes are not lit here), divided by its phase quadrature: float64 (nx, ny, nz, 3), the light
     reaching each voxel from each direction w (radiance transported slice by slice across the
@@ -614,7 +670,10 @@ def gathered_source(scene, solution, dirs, weights, boundary=None):
     each upstream segment, half a segment in the first slice; ``boundary`` (N, 3), the radiance
     entering the grid along each direction, at the first slice and wherever the point upstream
     is outside the grid; None: 0), scattered toward the camera with f_hg, at the voxels the
-    renderer reads; 0 elsewhere."""
+    renderer reads; 0 elsewhere. Light ``sun``'s unscattered lobe (default: :func:`default_sun`;
+    None: none) is transported apart without its angular factor f_hg(d_sun . w; g), and its
+    light is the quadrature's mean weighted by that factor times the phase, times their exact
+    integral f_hg(d_sun . to the eye; g g) (docs/METHOD.md Eq. 25e)."""
     from popvol.pipeline import voxels_seen
     med = scene.medium
     rho = med.density.astype(np.float64)
@@ -626,41 +685,29 @@ def gathered_source(scene, solution, dirs, weights, boundary=None):
     to_eye = np.asarray(scene.camera.origin, float) - centres
     to_eye /= np.maximum(np.linalg.norm(to_eye, axis=-1, keepdims=True), 1e-300)
     out, norm = np.zeros(med.shape + (3,)), np.zeros(med.shape)
+    out_sun, norm_sun = np.zeros(med.shape + (3,)), np.zeros(med.shape)
     boundary = np.zeros((len(dirs), 3)) if boundary is None else np.asarray(boundary, np.float64)
+    sun = default_sun(scene, solution) if sun == "default" else sun
+    g_sun = np.clip(g, -0.9999, 0.9999)
+    if sun is not None:
+        d_sun = solution.directions[sun]
+        apart = np.where(rho[..., None] > 0, _unscattered_lit(solution, sun, g), 0.0)
+        q_sun = sig * (alb[..., None] * alb_rgb) * apart
     for w, wt, entering in zip(dirs, weights, boundary):
         J = np.where(rho[..., None] > 0, _grid_lit(scene, solution, np.broadcast_to(-w, med.shape + (3,))), 0.0)
-        q = sig * (alb[..., None] * alb_rgb) * J
-        a = int(np.argmax(np.abs(w)))
-        b, c = [k for k in range(3) if k != a]
-        ell = med.voxel_size[a] / abs(w[a])
-        ob, oc = -ell * w[b] / med.voxel_size[b], -ell * w[c] / med.voxel_size[c]
-        # the arrays with the sweep axis first and the other two in increasing order
-        q_s, sig_s = np.moveaxis(q, a, 0), np.moveaxis(sig, a, 0)
-        L = np.zeros(q_s.shape)
-        order = range(q_s.shape[0]) if w[a] > 0 else range(q_s.shape[0] - 1, -1, -1)
-        for step, s in enumerate(order):
-            prev = s - 1 if w[a] > 0 else s + 1
-            for p in range(q_s.shape[1]):
-                for r in range(q_s.shape[2]):
-                    for ch in range(3):
-                        sv, qv = sig_s[s, p, r, ch], q_s[s, p, r, ch]
-                        u, v = p + ob, r + oc
-                        if step == 0:
-                            l_up, q_up, s_up, path = entering[ch], qv, sv, 0.5 * ell
-                        elif not (-0.5 <= u <= L.shape[1] - 0.5 and -0.5 <= v <= L.shape[2] - 0.5):
-                            l_up, q_up, s_up, path = entering[ch], 0.0, 0.0, ell    # from outside the grid
-                        else:
-                            l_up, q_up, s_up = (_bilinear_slice(f[prev, :, :, ch], u, v)
-                                                for f in (L, q_s, sig_s))
-                            path = ell
-                        sbar = 0.5 * (s_up + sv)
-                        weight = path if sbar * path < 1e-12 else -np.expm1(-sbar * path) / sbar
-                        L[s, p, r, ch] = l_up * np.exp(-sbar * path) + 0.5 * (q_up + qv) * weight
-        L = np.moveaxis(L, 0, a)
         f = wt * hg.f_hg(np.clip(to_eye @ w, -1.0, 1.0), g)
+        if sun is not None:
+            f_sun = hg.f_hg(w @ d_sun, g_sun)
+            J = J - apart * f_sun[..., None]
+            norm_sun += f * f_sun
+            out_sun += (f * f_sun)[..., None] * _transport(q_sun, sig, w, med, np.zeros(3))
+        q = sig * (alb[..., None] * alb_rgb) * J
         norm += f
-        out += f[..., None] * L
+        out += f[..., None] * _transport(q, sig, w, med, entering)
     out /= np.where(norm > 0, norm, 1.0)[..., None]
+    if sun is not None:
+        out += (out_sun / np.where(norm_sun > 0, norm_sun, 1.0)[..., None]
+                * hg.f_hg(np.clip(to_eye @ d_sun, -1.0, 1.0), g * g_sun)[..., None])
     return np.where(voxels_seen(med.density)[..., None], out, 0.0)
 
 

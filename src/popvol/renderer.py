@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from . import hg
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, eye_directions, gathered_source
 from .kernels.render import EDGE_DEPTH, background_radiance, render_kernel, substeps
@@ -307,8 +308,8 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     caller kept it (it does not depend on the camera). ``environment``: the map whose light
     enters the grid (:func:`gathered_environment`), float32 (H, 2H, 3), or None: nothing
     enters; the radiance arriving along a direction w is the map's from -w."""
-    box, seen_box, medium, grids, across_z, lobes, colour = state or gather_state(medium, lights, bundles, seen,
-                                                                                  factor, environment is not None)
+    box, seen_box, medium, grids, across_z, lobes, colour, sun = state or gather_state(
+        medium, lights, bundles, seen, factor, environment is not None)
     needed = grids[4]
     dirs, weights = gather_directions(n_directions, *(cap or (None, 0.0)))
     boundary = np.zeros((len(dirs), 1 if colour is not None else 3))
@@ -317,11 +318,18 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     lanes = min(GATHER_LANES, n_directions)
     out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
     norm = np.zeros((lanes,) + needed.shape, np.float32)
+    out_sun, norm_sun = np.zeros_like(out), np.zeros_like(norm)
     to_eye = eye_directions(medium, eye, needed)
     gathered_source(medium, lobes, grids + (to_eye,), across_z + (z_first(to_eye),), dirs, weights, out, norm,
-                    boundary)
+                    boundary, sun, out_sun, norm_sun)
     norm = norm.sum(axis=0, dtype=np.float64)
     light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
+    if sun[0].any():
+        # the sun's unscattered lobe and the phase toward the eye integrated exactly (Eq. 25e):
+        # the quadrature averages only the transported light, weighted by their product
+        norm_sun = norm_sun.sum(axis=0, dtype=np.float64)
+        mean = out_sun.sum(axis=0, dtype=np.float64) / np.where(norm_sun > 0, norm_sun, 1.0)[..., None]
+        light += mean * hg.f_hg(to_eye @ sun[1], float(medium[4].flat[0]) * sun[2])[..., None]
     light = (light * colour if colour is not None else light).astype(np.float32)
     if factor > 1:
         light = upsample(light, factor, seen_box)
@@ -341,7 +349,7 @@ def gather_state(medium, lights, bundles, seen, factor: int = 1, environment: bo
     z first (:func:`z_first`), as kernels.gather.gathered_source takes them but the eye's, the
     lobes (kernels.gather.emission_lobes), the one colour of the light or None:
     :func:`one_colour`, always None with an ``environment`` entering the grid, whose light has
-    colours of its own)."""
+    colours of its own), and which lobes are gathered apart (:func:`separated_sun`)."""
     grid, spherical = bundles
     box = occupied_box((medium[0] > 0) | seen, GATHER_MARGIN)
     medium, grid = crop_bundles(medium, grid, box)
@@ -362,11 +370,46 @@ def gather_state(medium, lights, bundles, seen, factor: int = 1, environment: bo
         lights = lights[:2] + (np.ones_like(lights[2]),) + lights[3:]
     lobes = np.zeros((len(cells), 3 * len(lights[0]) * grid[0].shape[1], 7), np.float32)
     emission_lobes(medium, lights, grid, spherical, cells, lobes)
+    sun = separated_sun(medium, lights, lobes)
     # the lobes that hold light somewhere (a light's kinds of lobe that are empty everywhere, as
     # the direct lobe of an environment's lights, cost every cell a test in every sweep)
-    lobes = np.ascontiguousarray(lobes[:, np.any(lobes[:, :, 4:] != 0, axis=(0, 2))])
+    lit = np.any(lobes[:, :, 4:] != 0, axis=(0, 2))
+    lobes = np.ascontiguousarray(lobes[:, lit])
+    sun = (np.ascontiguousarray(sun[0][lit]),) + sun[1:]
     grids = (density, medium[2], medium[4], slot, needed)
-    return box, seen_box, medium, grids, tuple(map(z_first, grids)), lobes, colour
+    return box, seen_box, medium, grids, tuple(map(z_first, grids)), lobes, colour, sun
+
+
+def separated_sun(medium, lights, lobes) -> tuple[np.ndarray, np.ndarray, float]:
+    """Which lobes the gather transports apart (kernels.gather.gathered_source's ``sun``):
+    (separated bool (K,), axis float64 (3,), g_sun): the unscattered light of the directional
+    light whose unscattered lobes (kernels.gather.emission_lobes, kind 0: one per field channel)
+    carry the most power, a lobe f_hg(axis . w; g_sun) about its direction the same in every
+    cell, so its angular factor can be integrated with the phase toward the eye exactly
+    (docs/METHOD.md, "Gathered last bounce", Eq. 25e). None is separated (all False) where g
+    varies from voxel to voxel (by more than 1e-6 of itself), or no directional light has
+    unscattered light."""
+    separated = np.zeros(lobes.shape[1], np.bool_)
+    none = (separated, np.array([0.0, 0.0, 1.0]), 0.0)
+    g = medium[4]
+    if g.size == 0 or np.ptp(g) > 1e-6 * abs(float(g.flat[0])) or lobes.shape[0] == 0 or len(lights[0]) == 0:
+        return none
+    n_ch = lobes.shape[1] // (3 * len(lights[0]))
+    best, best_power = None, 0.0
+    for l in range(len(lights[0])):
+        if lights[0][l]:                            # a point light's axis turns from cell to cell
+            continue
+        kinds = [3 * (l * n_ch + c) for c in range(n_ch)]
+        power = float(np.sum(lobes[:, kinds, 4:], dtype=np.float64))
+        if power > best_power:
+            best, best_power = kinds, power
+    if best is None:
+        return none
+    separated[best] = True
+    row = int(np.flatnonzero(np.any(lobes[:, best[0], 4:] != 0, axis=1))[0]) if n_ch == 1 else int(
+        np.flatnonzero(np.any(lobes[:, best, 4:] != 0, axis=(1, 2)))[0])
+    k = next(k for k in best if np.any(lobes[row, k, 4:] != 0))
+    return separated, lobes[row, k, :3].astype(np.float64), float(lobes[row, k, 3])
 
 
 def z_first(x: np.ndarray) -> np.ndarray:

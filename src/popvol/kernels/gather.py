@@ -24,6 +24,14 @@ channel:
   L_in(v) = L_in(up) T + (q(up) + q(v)) / 2 (1 - T) / sigma,  sigma = (sigma_t(up) + sigma_t(v)) / 2,
   T = exp(-sigma l).
 
+The sun's unscattered lobe, f_hg(d_s . w; g) in every cell, is transported without that factor
+and its light scattered toward the camera as
+
+  f_hg(d_s . w_o; g g) sum_i wt_i f_i p_i D(x, w_i) / sum_i wt_i f_i p_i,
+
+f_i = f_hg(d_s . w_i; g), p_i = f_hg(w_i . w_o; g): the two lobes integrated exactly, the
+quadrature averaging only the transported light D (docs/METHOD.md Eq. 25e).
+
 So the second scattering toward the camera is transported, not modelled: near a free surface
 little light arrives from outside, which one lobe per cell cannot say. What the renderer then
 adds per sample is the single scattering (Solution.single_scattering()). ``out`` holds it toward
@@ -175,7 +183,7 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, boundary):
+def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, boundary, sun, out_sun, norm_sun):
     """Add to ``out`` float32 (lanes, nx, ny, nz, C) the gathered L_s / sigma_s toward the
     camera (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
     quadrature's sum, at the voxels where ``needed``; the caller sums the lanes and divides.
@@ -189,6 +197,12 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, bo
     (:func:`eye_directions`)); across_z: C-ordered copies of the same with the z axis first
     ((nz, nx, ny, ...)), from which a direction swept across z reads its slices in memory order
     (its writes stay in place).
+    ``sun`` = (separated bool (K,), axis float64 (3,), g_sun float): the lobes marked separated
+    (a sun's unscattered light, a lobe f_hg(axis . w; g_sun) the same in every cell: docs/METHOD.md,
+    "Gathered last bounce", Eq. 25e) are transported without their angular factor, which
+    multiplies the phase toward the eye instead: their light goes to ``out_sun`` (as ``out``) and
+    that product's sum to ``norm_sun`` (as ``norm``), so that the caller can divide by it and
+    multiply by the two lobes' exact integral.
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
     directions one after another (so the sum does not depend on the number of threads). One
     colour has its own sweep (:func:`_sweep_one_colour`): the same arithmetic without the loop
@@ -196,16 +210,21 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, bo
     dirs float64 (N, 3) unit directions of travel, weights float64 (N,); boundary float64 (N, C),
     the radiance entering the grid along each direction (module docstring). medium: the render
     kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
+    separated, axis, g_sun = sun
     lanes = out.shape[0]
     for lane in nb.prange(lanes):
         for i in range(lane, dirs.shape[0], lanes):
+            w = dirs[i]
+            f_sun = f_hg(axis[0] * w[0] + axis[1] * w[1] + axis[2] * w[2], g_sun)
             if out.shape[4] == 1:
-                _sweep_one_colour(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane],
-                                  boundary[i, 0])
+                _sweep_one_colour(medium, lobes, grids, across_z, w, weights[i], out[lane], norm[lane],
+                                  boundary[i, 0], separated, f_sun, out_sun[lane], norm_sun[lane])
             elif _grey(medium[1]):
-                _sweep_grey(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane], boundary[i])
+                _sweep_grey(medium, lobes, grids, across_z, w, weights[i], out[lane], norm[lane], boundary[i],
+                            separated, f_sun, out_sun[lane], norm_sun[lane])
             else:
-                _sweep(medium, lobes, grids, across_z, dirs[i], weights[i], out[lane], norm[lane], boundary[i])
+                _sweep(medium, lobes, grids, across_z, w, weights[i], out[lane], norm[lane], boundary[i],
+                       separated, f_sun, out_sun[lane], norm_sun[lane])
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
@@ -273,22 +292,24 @@ def _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz):
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
+def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun, norm_sun):
     """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
     weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
-    times f_hg to ``norm`` (nx, ny, nz) where ``needed``. grids: (density, albedo, g, slot,
-    needed, to_eye (:func:`eye_directions`)); across_z: the same with the z axis first
-    read by a direction swept across z (:func:`gathered_source`)."""
+    times f_hg to ``norm`` (nx, ny, nz) where ``needed``; the ``separated`` lobes' light,
+    transported apart, times f_sun (their angular factor toward w) to ``out_sun`` and
+    ``norm_sun`` (:func:`gathered_source`). grids: (density, albedo, g, slot, needed, to_eye
+    (:func:`eye_directions`)); across_z: the same with the z axis first read by a direction
+    swept across z (:func:`gathered_source`)."""
     scale, albedo_rgb = medium[1], medium[3]
     n_out = out.shape[3]
     grey = _grey(scale)
     w0, w1, w2 = w[0], w[1], w[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
-    # per slice and channel: L_in, the emission per unit length q and sigma_t, of the slice
-    # before (prev) and this one (cur)
-    prev = np.zeros((3, nb_, nc_, n_out))
-    cur = np.zeros((3, nb_, nc_, n_out))
+    # per slice and channel: L_in, the emission per unit length q and sigma_t, then the separated
+    # lobes' L_in and q, of the slice before (prev) and this one (cur)
+    prev = np.zeros((5, nb_, nc_, n_out))
+    cur = np.zeros((5, nb_, nc_, n_out))
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         for p in range(nb_):
@@ -296,53 +317,66 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
                 ix, iy, iz = _voxel(a, s, p, q)                 # the voxel, where it is written
                 rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)     # where it is read
                 rho = density[rx, ry, rz]
-                j0 = j1 = j2 = 0.0
+                j0 = j1 = j2 = d0 = d1 = d2 = 0.0
                 alb = 0.0
                 row = slot[rx, ry, rz]
                 if row >= 0:
-                    j0, j1, j2 = _emitted(lobes, row, w0, w1, w2, n_out)
+                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated)
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
                 t = wgt = 0.0
                 for ch in range(n_out):
                     sig = scale[ch] * rho
                     qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
+                    qd = sig * alb * albedo_rgb[ch] * (d0 if ch == 0 else (d1 if ch == 1 else d2))
                     if step == 0:
-                        l_up, q_up = boundary[ch], qv
+                        l_up, q_up, ld_up, qd_up = boundary[ch], qv, 0.0, qd
                     elif su[0][p] and sv[0][q]:
                         l_up = _bilinear(prev, su, sv, p, q, 0, ch)
                         q_up = _bilinear(prev, su, sv, p, q, 1, ch)
+                        ld_up = _bilinear(prev, su, sv, p, q, 3, ch)
+                        qd_up = _bilinear(prev, su, sv, p, q, 4, ch)
                     else:                           # upstream of the grid: what enters it
-                        l_up, q_up = boundary[ch], 0.0
+                        l_up, q_up, ld_up, qd_up = boundary[ch], 0.0, 0.0, 0.0
                     if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
                         t, wgt = _segment(sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch), sig, path)
                     cur[0, p, q, ch] = l_up * t + 0.5 * (q_up + qv) * wgt
                     cur[1, p, q, ch] = qv
                     cur[2, p, q, ch] = sig
+                    cur[3, p, q, ch] = ld_up * t + 0.5 * (qd_up + qd) * wgt
+                    cur[4, p, q, ch] = qd
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     norm[ix, iy, iz] += f
+                    norm_sun[ix, iy, iz] += f * f_sun
                     for ch in range(n_out):
                         out[ix, iy, iz, ch] += f * cur[0, p, q, ch]
+                        out_sun[ix, iy, iz, ch] += f * f_sun * cur[3, p, q, ch]
         prev, cur = cur, prev
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _emitted(lobes, row, w0, w1, w2, n_out):
+def _emitted(lobes, row, w0, w1, w2, n_out, separated):
     """The light of lobe row ``row`` toward (w0, w1, w2), per colour (the last two 0 where
-    n_out = 1): sum over its lobes of weight f_hg(axis . w; g A), empty lobes passed over."""
-    j0 = j1 = j2 = 0.0
+    n_out = 1): sum over its lobes of weight f_hg(axis . w; g A), empty lobes passed over; then
+    the ``separated`` lobes' weights alone (:func:`gathered_source`), which that sum leaves out."""
+    j0 = j1 = j2 = d0 = d1 = d2 = 0.0
     for k in range(lobes.shape[1]):
         l0 = lobes[row, k, 4]
         l1 = lobes[row, k, 5] if n_out == 3 else 0.0
         l2 = lobes[row, k, 6] if n_out == 3 else 0.0
         if l0 == 0.0 and l1 == 0.0 and l2 == 0.0:
             continue
+        if separated[k]:
+            d0 += l0
+            d1 += l1
+            d2 += l2
+            continue
         f = f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2, lobes[row, k, 3])
         j0 += l0 * f
         j1 += l1 * f
         j2 += l2 * f
-    return j0, j1, j2
+    return j0, j1, j2, d0, d1, d2
 
 
 @nb.njit(inline="always", cache=True)
@@ -352,7 +386,7 @@ def _grey(scale):
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
+def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun, norm_sun):
     """:func:`_sweep` in RGB (out (nx, ny, nz, 3)) where sigma_t is grey (:func:`_grey`): the same
     arithmetic with the three channels written out, one segment's transmittance for all three
     and the upstream point's bilinear weights made once."""
@@ -361,8 +395,11 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
     b0, b1, b2 = boundary[0], boundary[1], boundary[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
-    prev = np.zeros((nb_, nc_, 7))          # L_in (3), q (3) and sigma_t of the slice before ...
-    cur = np.zeros((nb_, nc_, 7))           # ... and of this one
+    # L_in (3), q (3), sigma_t, then the separated lobes' L_in (3) and q (3), of the slice
+    # before ...
+    prev = np.zeros((nb_, nc_, 13))
+    cur = np.zeros((nb_, nc_, 13))           # ... and of this one
+    up = np.zeros(13)
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
@@ -371,38 +408,39 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
             for q in range(nc_):
                 ix, iy, iz = _voxel(a, s, p, q)
                 rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)
-                j0 = j1 = j2 = 0.0
+                j0 = j1 = j2 = d0 = d1 = d2 = 0.0
                 alb = 0.0
                 row = slot[rx, ry, rz]
                 if row >= 0:
-                    j0, j1, j2 = _emitted(lobes, row, w0, w1, w2, 3)
+                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, 3, separated)
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 sig = scale_0 * density[rx, ry, rz]
-                q0 = sig * alb * albedo_rgb[0] * j0
-                q1 = sig * alb * albedo_rgb[1] * j1
-                q2 = sig * alb * albedo_rgb[2] * j2
+                e0, e1, e2 = sig * alb * albedo_rgb[0], sig * alb * albedo_rgb[1], sig * alb * albedo_rgb[2]
+                q0, q1, q2 = e0 * j0, e1 * j1, e2 * j2
+                r0, r1, r2 = e0 * d0, e1 * d1, e2 * d2
                 if step == 0:
                     t, wgt = _segment(sig, sig, path)
-                    u0, u1, u2 = b0, b1, b2
-                    v0, v1, v2 = q0, q1, q2
+                    up[0], up[1], up[2] = b0, b1, b2
+                    up[3], up[4], up[5] = q0, q1, q2
+                    up[7], up[8], up[9] = 0.0, 0.0, 0.0
+                    up[10], up[11], up[12] = r0, r1, r2
                 elif inside_p and sv[0][q]:
                     k0, k1, fv = sv[1][q], sv[2][q], sv[3][q]
                     e00, e01, e10, e11 = (1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv
-                    u0 = e00 * prev[i0, k0, 0] + e01 * prev[i0, k1, 0] + e10 * prev[i1, k0, 0] + e11 * prev[i1, k1, 0]
-                    u1 = e00 * prev[i0, k0, 1] + e01 * prev[i0, k1, 1] + e10 * prev[i1, k0, 1] + e11 * prev[i1, k1, 1]
-                    u2 = e00 * prev[i0, k0, 2] + e01 * prev[i0, k1, 2] + e10 * prev[i1, k0, 2] + e11 * prev[i1, k1, 2]
-                    v0 = e00 * prev[i0, k0, 3] + e01 * prev[i0, k1, 3] + e10 * prev[i1, k0, 3] + e11 * prev[i1, k1, 3]
-                    v1 = e00 * prev[i0, k0, 4] + e01 * prev[i0, k1, 4] + e10 * prev[i1, k0, 4] + e11 * prev[i1, k1, 4]
-                    v2 = e00 * prev[i0, k0, 5] + e01 * prev[i0, k1, 5] + e10 * prev[i1, k0, 5] + e11 * prev[i1, k1, 5]
-                    s_up = e00 * prev[i0, k0, 6] + e01 * prev[i0, k1, 6] + e10 * prev[i1, k0, 6] + e11 * prev[i1, k1, 6]
-                    t, wgt = _segment(s_up, sig, path)
+                    for n in range(13):
+                        up[n] = e00 * prev[i0, k0, n] + e01 * prev[i0, k1, n] + e10 * prev[i1, k0, n] + e11 * prev[i1, k1, n]
+                    t, wgt = _segment(up[6], sig, path)
                 else:                                       # upstream of the grid: what enters it
                     t, wgt = _segment(0.0, sig, path)
-                    u0, u1, u2 = b0, b1, b2
-                    v0 = v1 = v2 = 0.0
-                l0 = u0 * t + 0.5 * (v0 + q0) * wgt
-                l1 = u1 * t + 0.5 * (v1 + q1) * wgt
-                l2 = u2 * t + 0.5 * (v2 + q2) * wgt
+                    up[0], up[1], up[2] = b0, b1, b2
+                    for n in range(3, 13):
+                        up[n] = 0.0
+                l0 = up[0] * t + 0.5 * (up[3] + q0) * wgt
+                l1 = up[1] * t + 0.5 * (up[4] + q1) * wgt
+                l2 = up[2] * t + 0.5 * (up[5] + q2) * wgt
+                m0 = up[7] * t + 0.5 * (up[10] + r0) * wgt
+                m1 = up[8] * t + 0.5 * (up[11] + r1) * wgt
+                m2 = up[9] * t + 0.5 * (up[12] + r2) * wgt
                 cur[p, q, 0] = l0
                 cur[p, q, 1] = l1
                 cur[p, q, 2] = l2
@@ -410,28 +448,48 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
                 cur[p, q, 4] = q1
                 cur[p, q, 5] = q2
                 cur[p, q, 6] = sig
+                cur[p, q, 7] = m0
+                cur[p, q, 8] = m1
+                cur[p, q, 9] = m2
+                cur[p, q, 10] = r0
+                cur[p, q, 11] = r1
+                cur[p, q, 12] = r2
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
+                    fs = f * f_sun
                     norm[ix, iy, iz] += f
                     out[ix, iy, iz, 0] += f * l0
                     out[ix, iy, iz, 1] += f * l1
                     out[ix, iy, iz, 2] += f * l2
+                    norm_sun[ix, iy, iz] += fs
+                    out_sun[ix, iy, iz, 0] += fs * m0
+                    out_sun[ix, iy, iz, 1] += fs * m1
+                    out_sun[ix, iy, iz, 2] += fs * m2
         prev, cur = cur, prev
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _lerp2(buf, k, i0, i1, j0, j1, fu, fv):
+    """buf (K, nu, nv) quantity k, bilinear between rows i0, i1 and columns j0, j1 (the
+    arithmetic of :func:`_bilinear`, so the same bits)."""
+    return ((1 - fu) * ((1 - fv) * buf[k, i0, j0] + fv * buf[k, i0, j1])
+            + fu * ((1 - fv) * buf[k, i1, j0] + fv * buf[k, i1, j1]))
+
+
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boundary):
+def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun,
+                      norm_sun):
     """:func:`_sweep` where every lobe has one colour (out (nx, ny, nz, 1)): the lobes' first
     weight transported with sigma_t's first channel, the same arithmetic in the same order
-    without the loop over channels (so the same bits), the upstream point's three bilinear
+    without the loop over channels (so the same bits), the upstream point's five bilinear
     values on one stencil."""
     scale_0, albedo_0 = medium[1][0], medium[3][0]      # sigma_t per density, albedo: channel 0
     n_lobes = lobes.shape[1]
     w0, w1, w2 = w[0], w[1], w[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
-    prev = np.zeros((3, nb_, nc_))          # L_in, q and sigma_t of the slice before ...
-    cur = np.zeros((3, nb_, nc_))           # ... and of this one
+    prev = np.zeros((5, nb_, nc_))          # L_in, q, sigma_t, the separated L_in and q of the slice before ...
+    cur = np.zeros((5, nb_, nc_))           # ... and of this one
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
@@ -441,36 +499,46 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
                 ix, iy, iz = _voxel(a, s, p, q)
                 rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)
                 j = 0.0
+                d = 0.0
                 alb = 0.0
                 row = slot[rx, ry, rz]
                 if row >= 0:
                     for k in range(n_lobes):
                         lk = lobes[row, k, 4]
                         if lk != 0.0:
-                            j += lk * f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2,
-                                           lobes[row, k, 3])
+                            if separated[k]:
+                                d += lk
+                            else:
+                                j += lk * f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1
+                                               + lobes[row, k, 2] * w2, lobes[row, k, 3])
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 sig = scale_0 * density[rx, ry, rz]
-                qv = sig * alb * albedo_0 * j
+                e = sig * alb * albedo_0
+                qv = e * j
+                qd = e * d
                 if step == 0:
-                    l_up, q_up, s_up = boundary, qv, sig
+                    l_up, q_up, s_up, ld_up, qd_up = boundary, qv, sig, 0.0, qd
                 elif inside_p and sv[0][q]:
                     j0, j1, fv = sv[1][q], sv[2][q], sv[3][q]
-                    l_up = ((1 - fu) * ((1 - fv) * prev[0, i0, j0] + fv * prev[0, i0, j1])
-                            + fu * ((1 - fv) * prev[0, i1, j0] + fv * prev[0, i1, j1]))
-                    q_up = ((1 - fu) * ((1 - fv) * prev[1, i0, j0] + fv * prev[1, i0, j1])
-                            + fu * ((1 - fv) * prev[1, i1, j0] + fv * prev[1, i1, j1]))
-                    s_up = ((1 - fu) * ((1 - fv) * prev[2, i0, j0] + fv * prev[2, i0, j1])
-                            + fu * ((1 - fv) * prev[2, i1, j0] + fv * prev[2, i1, j1]))
+                    l_up = _lerp2(prev, 0, i0, i1, j0, j1, fu, fv)
+                    q_up = _lerp2(prev, 1, i0, i1, j0, j1, fu, fv)
+                    s_up = _lerp2(prev, 2, i0, i1, j0, j1, fu, fv)
+                    ld_up = _lerp2(prev, 3, i0, i1, j0, j1, fu, fv)
+                    qd_up = _lerp2(prev, 4, i0, i1, j0, j1, fu, fv)
                 else:                                       # upstream of the grid: what enters it
-                    l_up, q_up, s_up = boundary, 0.0, 0.0
+                    l_up, q_up, s_up, ld_up, qd_up = boundary, 0.0, 0.0, 0.0, 0.0
                 t, wgt = _segment(s_up, sig, path)
                 light = l_up * t + 0.5 * (q_up + qv) * wgt
+                light_sun = ld_up * t + 0.5 * (qd_up + qd) * wgt
                 cur[0, p, q] = light
                 cur[1, p, q] = qv
                 cur[2, p, q] = sig
+                cur[3, p, q] = light_sun
+                cur[4, p, q] = qd
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     norm[ix, iy, iz] += f
                     out[ix, iy, iz, 0] += f * light
+                    norm_sun[ix, iy, iz] += f * f_sun
+                    out_sun[ix, iy, iz, 0] += f * f_sun * light_sun
         prev, cur = cur, prev
