@@ -441,19 +441,11 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                 m0 = up[7] * t + 0.5 * (up[10] + r0) * wgt
                 m1 = up[8] * t + 0.5 * (up[11] + r1) * wgt
                 m2 = up[9] * t + 0.5 * (up[12] + r2) * wgt
-                cur[p, q, 0] = l0
-                cur[p, q, 1] = l1
-                cur[p, q, 2] = l2
-                cur[p, q, 3] = q0
-                cur[p, q, 4] = q1
-                cur[p, q, 5] = q2
+                cur[p, q, 0], cur[p, q, 1], cur[p, q, 2] = l0, l1, l2
+                cur[p, q, 3], cur[p, q, 4], cur[p, q, 5] = q0, q1, q2
                 cur[p, q, 6] = sig
-                cur[p, q, 7] = m0
-                cur[p, q, 8] = m1
-                cur[p, q, 9] = m2
-                cur[p, q, 10] = r0
-                cur[p, q, 11] = r1
-                cur[p, q, 12] = r2
+                cur[p, q, 7], cur[p, q, 8], cur[p, q, 9] = m0, m1, m2
+                cur[p, q, 10], cur[p, q, 11], cur[p, q, 12] = r0, r1, r2
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     fs = f * f_sun
