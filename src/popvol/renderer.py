@@ -318,7 +318,10 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     lanes = min(GATHER_LANES, n_directions)
     out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
     norm = np.zeros((lanes,) + needed.shape, np.float32)
-    out_sun, norm_sun = np.zeros_like(out), np.zeros_like(norm)
+    # the sun's lobe's own sums (kernels.gather.gathered_source), placeholders where it has none
+    apart_shape = needed.shape if sun[0].any() else (1, 1, 1)
+    out_sun = np.zeros((lanes,) + apart_shape + out.shape[4:], np.float32)
+    norm_sun = np.zeros((lanes,) + apart_shape, np.float32)
     to_eye = eye_directions(medium, eye, needed)
     gathered_source(medium, lobes, grids + (to_eye,), across_z + (z_first(to_eye),), dirs, weights, out, norm,
                     boundary, sun, out_sun, norm_sun)

@@ -202,7 +202,8 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, bo
     "Gathered last bounce", Eq. 25e) are transported without their angular factor, which
     multiplies the phase toward the eye instead: their light goes to ``out_sun`` (as ``out``) and
     that product's sum to ``norm_sun`` (as ``norm``), so that the caller can divide by it and
-    multiply by the two lobes' exact integral.
+    multiply by the two lobes' exact integral; where none is separated they are not written (and
+    may be (lanes, 1, 1, 1, ...) placeholders).
     Direction i goes to lane i mod lanes, and the lanes run in parallel, each sweeping its
     directions one after another (so the sum does not depend on the number of threads). One
     colour has its own sweep (:func:`_sweep_one_colour`): the same arithmetic without the loop
@@ -306,6 +307,7 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
     w0, w1, w2 = w[0], w[1], w[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
+    apart = _any(separated)
     # per slice and channel: L_in, the emission per unit length q and sigma_t, then the separated
     # lobes' L_in and q, of the slice before (prev) and this one (cur)
     prev = np.zeros((5, nb_, nc_, n_out))
@@ -348,10 +350,12 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     norm[ix, iy, iz] += f
-                    norm_sun[ix, iy, iz] += f * f_sun
                     for ch in range(n_out):
                         out[ix, iy, iz, ch] += f * cur[0, p, q, ch]
-                        out_sun[ix, iy, iz, ch] += f * f_sun * cur[3, p, q, ch]
+                    if apart:
+                        norm_sun[ix, iy, iz] += f * f_sun
+                        for ch in range(n_out):
+                            out_sun[ix, iy, iz, ch] += f * f_sun * cur[3, p, q, ch]
         prev, cur = cur, prev
 
 
@@ -380,6 +384,15 @@ def _emitted(lobes, row, w0, w1, w2, n_out, separated):
 
 
 @nb.njit(inline="always", cache=True)
+def _any(flags):
+    """Whether any of ``flags`` (bool (K,)) is set."""
+    for k in range(flags.shape[0]):
+        if flags[k]:
+            return True
+    return False
+
+
+@nb.njit(inline="always", cache=True)
 def _grey(scale):
     """Whether sigma_t per density is the same in the three channels."""
     return scale[0] == scale[1] and scale[1] == scale[2]
@@ -395,6 +408,7 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
     b0, b1, b2 = boundary[0], boundary[1], boundary[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
+    apart = _any(separated)
     # L_in (3), q (3), sigma_t, then the separated lobes' L_in (3) and q (3), of the slice
     # before ...
     prev = np.zeros((nb_, nc_, 13))
@@ -453,10 +467,11 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                     out[ix, iy, iz, 0] += f * l0
                     out[ix, iy, iz, 1] += f * l1
                     out[ix, iy, iz, 2] += f * l2
-                    norm_sun[ix, iy, iz] += fs
-                    out_sun[ix, iy, iz, 0] += fs * m0
-                    out_sun[ix, iy, iz, 1] += fs * m1
-                    out_sun[ix, iy, iz, 2] += fs * m2
+                    if apart:
+                        norm_sun[ix, iy, iz] += fs
+                        out_sun[ix, iy, iz, 0] += fs * m0
+                        out_sun[ix, iy, iz, 1] += fs * m1
+                        out_sun[ix, iy, iz, 2] += fs * m2
         prev, cur = cur, prev
 
 
@@ -480,6 +495,7 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
     w0, w1, w2 = w[0], w[1], w[2]
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
+    apart = _any(separated)
     prev = np.zeros((5, nb_, nc_))          # L_in, q, sigma_t, the separated L_in and q of the slice before ...
     cur = np.zeros((5, nb_, nc_))           # ... and of this one
     for step in range(na):
@@ -531,6 +547,7 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     norm[ix, iy, iz] += f
                     out[ix, iy, iz, 0] += f * light
-                    norm_sun[ix, iy, iz] += f * f_sun
-                    out_sun[ix, iy, iz, 0] += f * f_sun * light_sun
+                    if apart:
+                        norm_sun[ix, iy, iz] += f * f_sun
+                        out_sun[ix, iy, iz, 0] += f * f_sun * light_sun
         prev, cur = cur, prev
