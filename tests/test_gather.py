@@ -93,6 +93,38 @@ def test_sun_lobe_gathered_apart_converges_with_fewer_directions(monkeypatch):
     assert abs(together[0]) > 0.03 and together[1] > 2 * apart[1]
 
 
+def test_the_brightest_suns_unscattered_lobe_is_taken_apart():
+    """renderer.separated_sun takes apart the unscattered lobes (one per field channel) of the
+    directional light that carries the most of that light, with its direction and anisotropy;
+    none where g varies from voxel to voxel or only point lights shine."""
+    def scene(lights, g=0.6):
+        return popvol.scene_from_dict({
+            "medium": {"type": "procedural", "resolution": 10, "seed": 3, "scale": 30.0, "albedo": [0.95, 0.9, 0.8],
+                       "g": g},
+            "lights": lights,
+            "camera": {"origin": [0.0, 0.3, 2.4], "target": [0.0, 0.5, 0.0], "fov": 40.0, "width": 24, "height": 16},
+            "method": {"resolution": 12}})
+
+    def apart(sc):
+        sol = popvol.solve(sc)
+        medium, lights = renderer.render_inputs(sc, sol)[:2]
+        state = renderer.gather_state(medium, lights, renderer.field_bundles(sol), voxels_seen(sc.medium.density), 1)
+        return state[-1], sol
+
+    dim = {"type": "directional", "direction": [-0.9, -0.4, -0.35], "irradiance": [1.0, 1.0, 1.0]}
+    bright = {"type": "directional", "direction": [0.3, -0.9, 0.2], "irradiance": [4.0, 3.0, 2.0]}
+    point = {"type": "point", "position": [0.0, 1.5, 0.0], "intensity": [50.0, 50.0, 50.0]}
+    (separated, axis, g_sun), sol = apart(scene([dim, bright, point]))
+    assert separated.sum() == sol.phi.shape[1]                  # the bright sun's lobe in each channel
+    np.testing.assert_allclose(axis, sol.directions[1], atol=1e-6)
+    assert g_sun == pytest.approx(0.6, rel=1e-6)
+    assert not apart(scene([point]))[0][0].any()
+    varying = scene([bright])
+    varying.medium.g = np.linspace(0.3, 0.7, varying.medium.density.size, dtype=np.float32).reshape(
+        varying.medium.shape)
+    assert not apart(varying)[0][0].any()
+
+
 def test_gather_cap_covers_the_view():
     scene = small_scene()
     axis, cap = renderer.gather_cap(scene.camera)
