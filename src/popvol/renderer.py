@@ -409,10 +409,9 @@ def separated_sun(medium, lights, lobes) -> tuple[np.ndarray, np.ndarray, float]
     if best is None:
         return none
     separated[best] = True
-    row = int(np.flatnonzero(np.any(lobes[:, best[0], 4:] != 0, axis=1))[0]) if n_ch == 1 else int(
-        np.flatnonzero(np.any(lobes[:, best, 4:] != 0, axis=(1, 2)))[0])
-    k = next(k for k in best if np.any(lobes[row, k, 4:] != 0))
-    return separated, lobes[row, k, :3].astype(np.float64), float(lobes[row, k, 3])
+    # the axis and g of one lobe that holds light (every one of them has the same)
+    row, j = np.argwhere(np.any(lobes[:, best, 4:] != 0, axis=2))[0]
+    return separated, lobes[row, best[j], :3].astype(np.float64), float(lobes[row, best[j], 3])
 
 
 def z_first(x: np.ndarray) -> np.ndarray:
