@@ -11,8 +11,8 @@ with ../shared beside the checkout (about 10 minutes on 2 cores once the referen
 
 The suite:
 - every scene of scenes/accuracy/ (the WDAS cloud under the sun at five scattering angles and at
-  three densities, a thin haze, the procedural cumulus field, the dense smoke under a sun and a
-  point light, a cloud under an HDR map). Their references are
+  three densities, a thin haze, the procedural cumulus field with the sun behind the camera and
+  behind the field, the dense smoke under a sun and a point light, a cloud under an HDR map). Their references are
   build/accuracy/NAME.exr (not in git), rendered here with ``popvol.reference`` when missing or
   short of ``--spp`` (times SPP_SCALE for the scenes that cost Mitsuba far more per sample) and
   extended, never edited, on later runs; a reference made before ``popvol reference`` kept two
@@ -56,6 +56,7 @@ ORDER = {
     "wdas_density_10": "density x10, 90 degrees",
     "haze": "optically thin cloud (tau ~1), sun",
     "field_sun": "14 small cumulus on voxels twice as tall as wide, ~135 degrees",
+    "field_silver": "the same field, the sun low behind it (~35 degrees): silver linings",
     "smoke1": "dense smoke, sun",
     "smoke1_point": "smoke lit by a point light",
     "demo_envmap": "cloud under an HDR environment map",
