@@ -56,20 +56,20 @@ def test_capped_directions_integrate_a_peaked_phase_function():
     assert max(e.max() for e in errors(256, np.radians(50.0))) < 0.05
 
 
-def _gathered(scene, sol, n, separate=True, monkeypatch=None):
+def _gathered(scene, sol, n, separate=True):
     """renderer.gather's light at the voxels the renderer reads, from n directions capped about
     the view; without the sun's lobe gathered apart where ``separate`` is False."""
     inputs = renderer.render_inputs(scene, sol)
-    if not separate:
-        monkeypatch.setattr(renderer, "separated_sun", lambda medium, lights, lobes: (
-            np.zeros(lobes.shape[1], np.bool_), np.array([0.0, 0.0, 1.0]), 0.0))
-    light = renderer.gather(inputs[0], inputs[1], renderer.field_bundles(sol), np.asarray(scene.camera.origin, float),
-                            voxels_seen(scene.medium.density), n, cap=renderer.gather_cap(scene.camera))
-    monkeypatch is None or monkeypatch.undo()
-    return light
+    with pytest.MonkeyPatch.context() as mp:
+        if not separate:
+            mp.setattr(renderer, "separated_sun", lambda medium, lights, lobes: (
+                np.zeros(lobes.shape[1], np.bool_), np.array([0.0, 0.0, 1.0]), 0.0))
+        return renderer.gather(inputs[0], inputs[1], renderer.field_bundles(sol),
+                               np.asarray(scene.camera.origin, float), voxels_seen(scene.medium.density), n,
+                               cap=renderer.gather_cap(scene.camera))
 
 
-def test_sun_lobe_gathered_apart_converges_with_fewer_directions(monkeypatch):
+def test_sun_lobe_gathered_apart_converges_with_fewer_directions():
     """The sun's unscattered lobe (peaked: g = 0.85) and the phase toward the eye, integrated
     exactly and only the transported light averaged by the quadrature (renderer.separated_sun,
     docs/METHOD.md Eq. 25e), against the same gather from 4096 directions (the integral both
@@ -82,13 +82,13 @@ def test_sun_lobe_gathered_apart_converges_with_fewer_directions(monkeypatch):
     converged = _gathered(scene, sol, 4096)
     lit = converged[..., 0] > 0
     assert lit.sum() > 200
-    np.testing.assert_allclose(_gathered(scene, sol, 4096, False, monkeypatch)[lit].sum(), converged[lit].sum(),
+    np.testing.assert_allclose(_gathered(scene, sol, 4096, False)[lit].sum(), converged[lit].sum(),
                                rtol=1e-4)
 
     def misses(light):
         return (light[lit].sum() / converged[lit].sum() - 1.0,
                 np.sqrt(np.mean((light[lit] - converged[lit]) ** 2)) / converged[lit].mean())
-    apart, together = misses(_gathered(scene, sol, 64)), misses(_gathered(scene, sol, 64, False, monkeypatch))
+    apart, together = misses(_gathered(scene, sol, 64)), misses(_gathered(scene, sol, 64, False))
     assert abs(apart[0]) < 0.01 and apart[1] < 0.06
     assert abs(together[0]) > 0.03 and together[1] > 2 * apart[1]
 

@@ -12,7 +12,7 @@ from popvol import hg
 from popvol.errors import PopvolError
 from popvol.kernels import ordinates as KO
 from popvol.kernels import cells as KC
-from popvol.walk import (ORDINATES18, direct_fluence, medium_factors, ordinate_table, ordinates_ahead, row_groups,
+from popvol.walk import (ORDINATES6, direct_fluence, medium_factors, ordinate_table, ordinates_ahead, row_groups,
                          scatter_factor, skipped_cells, walk_box)
 from test_propagation import uniform_factors
 
@@ -96,7 +96,7 @@ def kernel_sweep(W, Wa, Th, Sh, Dh, phi, F, w_min, order, tally, runs=None, edge
                               *order, tally, np.array([0, shape[1]]) if edges is None else np.asarray(edges, np.int64),
                               np.zeros(shape[1]) if work is None else work, cell, runs,
                               pending_rows(W) if pending is None else pending,
-                              ordinates_ahead(ORDINATES18[:6], order) if upwind else np.ones(6, np.bool_))
+                              ordinates_ahead(ORDINATES6, order) if upwind else np.ones(6, np.bool_))
     W[:, kept], Wa[:, kept] = Wc.T, Wac.T
     return sent
 

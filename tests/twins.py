@@ -606,7 +606,7 @@ def _bilinear_slice(buf, u, v):
             + fu * ((1 - fv) * buf[i1, j0] + fv * buf[i1, j1]))
 
 
-def _unscattered_lit(solution, l, g):
+def _unscattered_lit(solution, l):
     """(nx, ny, nz, 3): directional light l's unscattered lobe's weight, without its angular
     factor: phi_dir (at most phi) times the light's power, summed over its field channels (the
     part of :func:`_grid_lit` that is phi_dir f_hg(mu; g), :func:`walk_lobes`)."""
@@ -626,7 +626,7 @@ def default_sun(scene, solution):
     g = np.asarray(scene.medium.g, np.float64)
     if np.ptp(g) > 1e-6 * abs(float(g.flat[0])):
         return None
-    power = [0.0 if solution.is_point[l] else float(_unscattered_lit(solution, l, 0.0).sum())
+    power = [0.0 if solution.is_point[l] else float(_unscattered_lit(solution, l).sum())
              for l in range(len(solution.is_point))]
     return int(np.argmax(power)) if max(power, default=0.0) > 0 else None
 
@@ -691,7 +691,7 @@ def gathered_source(scene, solution, dirs, weights, boundary=None, sun="default"
     g_sun = np.clip(g, -0.9999, 0.9999)
     if sun is not None:
         d_sun = solution.directions[sun]
-        apart = np.where(rho[..., None] > 0, _unscattered_lit(solution, sun, g), 0.0)
+        apart = np.where(rho[..., None] > 0, _unscattered_lit(solution, sun), 0.0)
         q_sun = sig * (alb[..., None] * alb_rgb) * apart
     for w, wt, entering in zip(dirs, weights, boundary):
         J = np.where(rho[..., None] > 0, _grid_lit(scene, solution, np.broadcast_to(-w, med.shape + (3,))), 0.0)

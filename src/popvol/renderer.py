@@ -319,7 +319,8 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     out = np.zeros((lanes,) + needed.shape + (1 if colour is not None else 3,), np.float32)
     norm = np.zeros((lanes,) + needed.shape, np.float32)
     # the sun's lobe's own sums (kernels.gather.gathered_source), placeholders where it has none
-    apart_shape = needed.shape if sun[0].any() else (1, 1, 1)
+    apart = bool(sun[0].any())
+    apart_shape = needed.shape if apart else (1, 1, 1)
     out_sun = np.zeros((lanes,) + apart_shape + out.shape[4:], np.float32)
     norm_sun = np.zeros((lanes,) + apart_shape, np.float32)
     to_eye = eye_directions(medium, eye, needed)
@@ -327,7 +328,7 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
                     boundary, sun, out_sun, norm_sun)
     norm = norm.sum(axis=0, dtype=np.float64)
     light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
-    if sun[0].any():
+    if apart:
         # the sun's unscattered lobe and the phase toward the eye integrated exactly (Eq. 25e):
         # the quadrature averages only the transported light, weighted by their product
         norm_sun = norm_sun.sum(axis=0, dtype=np.float64)

@@ -82,6 +82,9 @@ def _lattice18() -> np.ndarray:
 
 #: the eighteen-ordinate walk's directions as offsets in cells (kernels/ordinates18.py)
 ORDINATES18 = _lattice18()
+#: the six-ordinate walk's directions (kernels/ordinates.py), in its order +d, -d, +u, -u, +v, -v:
+#: the lattice's six faces
+ORDINATES6 = ORDINATES18[:6]
 #: the groups of rows the eighteen-ordinate sweep runs as a pipeline (one thread each at most),
 #: fixed so that the fields do not depend on the number of threads: it uses two threads at most
 GROUPS18 = 2
@@ -458,7 +461,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
         edges = row_groups(row_work, shape[0] * shape[2], fu, lanes)
         sent = KO.ordinates_sweep(W, Wa, Th, Dh, Sh, table, inv_area, phi, flux, np.float32(w_min), fd,
                                   fu, fv, tally, edges, row_work, cell, runs, pending,
-                                  ordinates_ahead(ORDINATES18[:6], (fd, fu, fv)))
+                                  ordinates_ahead(ORDINATES6, (fd, fu, fv)))
         return K.total_energy(W.reshape(m, 1, 12)), sent
     in_flight, it, sent = sweep_until_converged(one_sweep, float(np.sum(W, dtype=np.float64)), target, cap,
                                                 6 * n, injected, progress)

@@ -336,8 +336,10 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                     elif su[0][p] and sv[0][q]:
                         l_up = _bilinear(prev, su, sv, p, q, 0, ch)
                         q_up = _bilinear(prev, su, sv, p, q, 1, ch)
-                        ld_up = _bilinear(prev, su, sv, p, q, 3, ch)
-                        qd_up = _bilinear(prev, su, sv, p, q, 4, ch)
+                        ld_up = qd_up = 0.0
+                        if apart:
+                            ld_up = _bilinear(prev, su, sv, p, q, 3, ch)
+                            qd_up = _bilinear(prev, su, sv, p, q, 4, ch)
                     else:                           # upstream of the grid: what enters it
                         l_up, q_up, ld_up, qd_up = boundary[ch], 0.0, 0.0, 0.0
                     if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
@@ -409,6 +411,7 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
     a, wa, ell, (na, nb_, nc_), read, su, sv = _slices(medium, grids, across_z, w)
     density, albedo, g_grid, slot, needed, to_eye = read
     apart = _any(separated)
+    n_up = 13 if apart else 7          # the separated lobes' quantities are read only if any is
     # L_in (3), q (3), sigma_t, then the separated lobes' L_in (3) and q (3), of the slice
     # before ...
     prev = np.zeros((nb_, nc_, 13))
@@ -441,7 +444,7 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                 elif inside_p and sv[0][q]:
                     k0, k1, fv = sv[1][q], sv[2][q], sv[3][q]
                     e00, e01, e10, e11 = (1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv
-                    for n in range(13):
+                    for n in range(n_up):
                         up[n] = e00 * prev[i0, k0, n] + e01 * prev[i0, k1, n] + e10 * prev[i1, k0, n] + e11 * prev[i1, k1, n]
                     t, wgt = _segment(up[6], sig, path)
                 else:                                       # upstream of the grid: what enters it
@@ -531,8 +534,10 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
                     l_up = _lerp2(prev, 0, i0, i1, j0, j1, fu, fv)
                     q_up = _lerp2(prev, 1, i0, i1, j0, j1, fu, fv)
                     s_up = _lerp2(prev, 2, i0, i1, j0, j1, fu, fv)
-                    ld_up = _lerp2(prev, 3, i0, i1, j0, j1, fu, fv)
-                    qd_up = _lerp2(prev, 4, i0, i1, j0, j1, fu, fv)
+                    ld_up = qd_up = 0.0
+                    if apart:
+                        ld_up = _lerp2(prev, 3, i0, i1, j0, j1, fu, fv)
+                        qd_up = _lerp2(prev, 4, i0, i1, j0, j1, fu, fv)
                 else:                                       # upstream of the grid: what enters it
                     l_up, q_up, s_up, ld_up, qd_up = boundary, 0.0, 0.0, 0.0, 0.0
                 t, wgt = _segment(s_up, sig, path)
