@@ -5,15 +5,15 @@ thicken: the accuracy issue's dense-media item (docs/METHOD.md, "Optically thick
 The unscattered light scattered once is right where voxels are thin, and so is the whole
 reflection (with the gathered last bounce, method.gather) at 0.25 mean free paths per voxel.
 With empty voxels above the slab, as a volume from a file has, the reflection levels off near the
-albedo problem's value however thick the voxels (the eighteen-ordinate walk, the default, 17-24 %
-below it; the one-lobe sweeps with their diffusion stage within 13 %): the march splits optically thick segments, so
+albedo problem's value however thick the voxels (the eighteen-ordinate walk, the default, 14-22 %
+below it; the one-lobe sweeps with their diffusion stage within 16 %): the march splits optically thick segments, so
 the single scattering samples the lit skin, and light transport sees voxels capped at
 medium.MAX_TRANSPORT_DEPTH mean free paths, so the multiply scattered light is that of a medium
 whose cells resolve the depth it comes from. Where the slab's face is the grid's own edge the
 fields are clamped to the top voxel's values, which hold little of the unscattered light of
 thick voxels, so the march takes it there by Beer-Lambert from the face (docs/METHOD.md Eq.
 25d) and the single scattering is the Monte Carlo's; the whole reflection is within the goal
-(5 % of Monte Carlo) up to 1 mean free path per voxel and misses it beyond (x0.90), where the
+(5 % of Monte Carlo) up to 1 mean free path per voxel and misses it beyond (x0.93), where the
 multiply scattered light of the capped voxels is too dark: strict expected failures, so that
 a fix shows as an XPASS and must turn them into plain tests. ``python scripts/dense_slab.py
 [--pad 2]`` prints the whole table.
@@ -60,18 +60,20 @@ def test_single_scattering_of_a_thick_slab_in_empty_space_levels_off(tau_voxel):
         assert single == pytest.approx(mc["single"], rel=0.25, abs=3 * mc["stderr_single"]), resolution
 
 
-@pytest.mark.parametrize("solver, rel", [("ordinates", 0.25), ("sweep", 0.15)])
+@pytest.mark.parametrize("solver, rel", [("ordinates", 0.25), ("sweep", 0.2)])
 @pytest.mark.parametrize("tau_voxel", [10.0, 100.0, 1e4, 1e5])
 def test_reflection_of_a_thick_slab_in_empty_space_levels_off_near_monte_carlo(tau_voxel, solver, rel):
     """With empty voxels above the slab, the whole reflected radiance levels off near the Monte
     Carlo's (the semi-infinite albedo problem's value) at 16 and 32 cells, from 10 to 10^5 mean
     free paths per voxel (before the transport's cap, x0.37 at 10 and x0.12 from 100 on): an
     optically thick medium's reflection depends on its albedo and g, not its density. The
-    eighteen-ordinate walk (the default) within 25 %: measured x0.78 / x0.76 / x0.77 / x0.77 at 16
-    cells and x0.83 / x0.80 / x0.81 / x0.81 at 32, too dark because it walks the capped voxels'
+    eighteen-ordinate walk (the default) within 25 %: measured x0.80 / x0.78 / x0.78 / x0.78 at 16
+    cells and x0.86 / x0.82 / x0.82 / x0.82 at 32, too dark because it walks the capped voxels'
     light cell by cell, with no diffusion stage (docs/METHOD.md, "Six ordinates"); the one-lobe
-    sweeps with their diffusion stage within 15 %: x0.91 / x0.93 / x0.95 / x0.95 and x1.10 /
-    x1.11 / x1.12 / x1.13. Neither meets the issue's 5 %."""
+    sweeps with their diffusion stage within 20 %: x0.94 / x0.95 / x0.97 / x0.97 and x1.15 /
+    x1.15 / x1.15 / x1.15 (x0.91-x0.95 and x1.10-x1.13 before the gather integrated each
+    segment's source function exactly, docs/METHOD.md Eq. 25f, which made the default 2 % and 3 %
+    brighter). Neither meets the issue's 5 %."""
     mc = monte_carlo(tau_voxel)
     for resolution in (16, 32):
         scene = apply_overrides(slab_scene(tau_voxel, resolution, pad=2), solver=solver)
@@ -95,9 +97,9 @@ def test_single_scattering_of_a_slab_whose_face_is_the_grid_edge_matches_monte_c
 
 
 THICK = pytest.mark.xfail(strict=True, reason="#11 item 4: the reflection of a front-lit slab whose face is "
-                          "the grid's edge is x0.88 from 10 mean free paths per voxel on (16 cells, eighteen "
+                          "the grid's edge is x0.93 from 10 mean free paths per voxel on (16 cells, eighteen "
                           "ordinates; its single scattering x1.00, the multiply scattered light of the capped voxels "
-                          "x0.87; six ordinates x0.89, the one-lobe sweeps x0.84; dense_slab.py)")
+                          "x0.93; dense_slab.py)")
 
 
 @pytest.mark.parametrize("tau_voxel, resolution", [(0.25, 32), (1.0, 16)]
@@ -105,11 +107,11 @@ THICK = pytest.mark.xfail(strict=True, reason="#11 item 4: the reflection of a f
 def test_reflection_of_a_slab_matches_monte_carlo(tau_voxel, resolution):
     """The whole reflected radiance (every order of scattering) within GOAL of Monte Carlo, from
     0.25 to 10^4 mean free paths per voxel, with the slab's face at the grid's edge: the level the
-    issue asks for. Measured with the eighteen-ordinate walk, the default: x0.945 / x0.955 at
-    0.25 (16 / 32 cells), x0.972 / x0.999 at 1, x0.88-x0.89 at 10, 100 and 10^4 (16 cells), where
-    the single scattering is x1.00 and the rest x0.87; with six ordinates x0.958 / x0.964, x0.993
-    / x1.010 and x0.89 (the rest x0.88); with the one-lobe sweeps x0.98, x0.95 and x0.84 at 16
-    cells. So the thinnest slab is held at 32 cells, where the default is within GOAL."""
+    issue asks for. Measured with the eighteen-ordinate walk, the default: x0.946 / x0.956 at
+    0.25 (16 / 32 cells), x0.987 / x1.015 at 1, x0.933-x0.934 at 10, 100 and 10^4 (16 cells),
+    where the single scattering is x1.00 and the rest x0.93 (x0.945 / x0.955, x0.972 / x0.999 and
+    x0.88-x0.89 before the gather integrated each segment's source function exactly, docs/METHOD.md
+    Eq. 25f). So the thinnest slab is held at 32 cells, where the default is within GOAL."""
     mc = monte_carlo(tau_voxel)
     scene = slab_scene(tau_voxel, resolution)
     total = centre_radiance(popvol.render(scene, popvol.solve(scene), jitter=False))

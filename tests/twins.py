@@ -631,6 +631,29 @@ def default_sun(scene, solution):
     return int(np.argmax(power)) if max(power, default=0.0) > 0 else None
 
 
+_GAUSS = np.polynomial.legendre.leggauss(32)
+
+
+def _linear_source(q_up, s_up, q_v, s_v, path):
+    """The light a segment of ``path`` emits toward its end: int_0^path sigma(s) J(s) exp(-(tau -
+    tau(s))) ds, with sigma_t linear from s_up to s_v, tau(s) the optical depth from the upstream
+    end and the source function J = q / sigma_t linear in it (where sigma_t is 0 at one end, the
+    other end's J), by Gauss-Legendre quadrature in s (the kernel's closed form,
+    kernels.gather._segment, is held against this)."""
+    j_v = q_v / s_v if s_v > 0 else 0.0
+    j_up = q_up / s_up if s_up > 0 else j_v
+    j_v = j_v if s_v > 0 else j_up
+    x, wt = _GAUSS
+    s = 0.5 * path * (x + 1.0)
+    sigma = s_up + (s_v - s_up) * s / path
+    tau_s = s_up * s + 0.5 * (s_v - s_up) * s * s / path
+    tau = 0.5 * (s_up + s_v) * path
+    if tau <= 0:
+        return 0.0
+    J = j_up + (j_v - j_up) * tau_s / tau
+    return float(0.5 * path * np.sum(wt * sigma * J * np.exp(-(tau - tau_s))))
+
+
 def _transport(q, sig, w, med, entering):
     """The radiance L (nx, ny, nz, 3) reaching each voxel along w from the emission per unit
     length q (nx, ny, nz, 3) through sigma_t ``sig``, slice by slice (:func:`gathered_source`)."""
@@ -656,9 +679,8 @@ def _transport(q, sig, w, med, entering):
                     else:
                         l_up, q_up, s_up = (_bilinear_slice(f[prev, :, :, ch], u, v) for f in (L, q_s, sig_s))
                         path = ell
-                    sbar = 0.5 * (s_up + sv)
-                    weight = path if sbar * path < 1e-12 else -np.expm1(-sbar * path) / sbar
-                    L[s, p, r, ch] = l_up * np.exp(-sbar * path) + 0.5 * (q_up + qv) * weight
+                    tau = 0.5 * (s_up + sv) * path
+                    L[s, p, r, ch] = l_up * np.exp(-tau) + _linear_source(q_up, s_up, qv, sv, path)
     return np.moveaxis(L, 0, a)
 
 
@@ -666,8 +688,9 @@ def gathered_source(scene, solution, dirs, weights, boundary=None, sun="default"
     """Twin of kernels.gather.gathered_source for directional lights (the point lights' walk
     lobes are not lit here), divided by its phase quadrature: float64 (nx, ny, nz, 3), the light
     reaching each voxel from each direction w (radiance transported slice by slice across the
-    axis where |w| is largest, from the lobes' light toward w, sigma_t and emission linear along
-    each upstream segment, half a segment in the first slice; ``boundary`` (N, 3), the radiance
+    axis where |w| is largest, from the lobes' light toward w, sigma_t linear along each upstream
+    segment and the source function linear in its optical depth, half a segment in the first
+    slice; ``boundary`` (N, 3), the radiance
     entering the grid along each direction, at the first slice and wherever the point upstream
     is outside the grid; None: 0), scattered toward the camera with f_hg, at the voxels the
     renderer reads; 0 elsewhere. Light ``sun``'s unscattered lobe (default: :func:`default_sun`;
