@@ -73,8 +73,11 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     t1 = time.perf_counter()
     walk = domain.walk(optics, method, progress, read)
     if transport is not medium and walk.direct is not None:
-        # the unscattered light crosses the true density (docs/METHOD.md, "Optically thick voxels")
+        # the unscattered light crosses the true density (docs/METHOD.md, "Optically thick voxels");
+        # the walk's own, through the capped density, is kept for the gathered last bounce (Eq. 25g)
+        capped = walk.direct
         replace_direct(walk, domain.direct_fluence(domain.resample(medium, channel)[0]))
+        walk.direct_transport = capped
     ds = DomainSolution(light, domain, walk, t1 - t0, channel)
     if walk.handed is not None:         # the diffusion stage (not for a sun's six-ordinate walk)
         t2 = time.perf_counter()
@@ -158,6 +161,28 @@ def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
     if direct is not None:
         outs[0][...] = outs[2]
         outs[1][...] = outs[2]
+
+
+def transport_direct(solution: Solution) -> np.ndarray | None:
+    """float32 (n_lights, n_channels, nx, ny, nz): each light's unscattered fluence as its walk
+    saw it, through the medium's capped density (WalkResult.direct_transport, mapped onto the
+    voxels as ``Solution.direct`` is), where a domain on a grid kept one, else ``direct``'s; None
+    where none did (no voxel capped, or only point lights, whose fields are not on the grid).
+    The gathered last bounce scatters it (docs/METHOD.md Eq. 25g)."""
+    kept = [ds for ds in solution.domains
+            if ds.result.direct_transport is not None and not solution.is_point[ds.light_index]]
+    if not kept:
+        return None
+    med = solution.medium
+    needed = seen_voxels(med)
+    out = np.array(solution.direct, np.float32)
+    for ds in kept:
+        dom = ds.domain
+        field = np.zeros(med.shape, np.float32)
+        domain_to_world((ds.result.direct_transport,), dom.frame, dom.origin, dom.h, med.origin, med.voxel_size,
+                        (field,), needed)
+        out[ds.light_index, ds.channel][needed] = field[needed]
+    return out
 
 
 def warm_domains(warm, scene) -> tuple[dict, str]:

@@ -1,6 +1,7 @@
 """Render an image of a solved scene by ray marching (see kernels/render.py for the equations)."""
 from __future__ import annotations
 
+import dataclasses
 
 import numba
 import numpy as np
@@ -11,7 +12,7 @@ from .kernels.gather import emission_lobes, eye_directions, gathered_source
 from .kernels.render import EDGE_DEPTH, background_radiance, render_kernel, substeps
 from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
-from .pipeline import medium_key, seen_voxels, solve, voxels_seen
+from .pipeline import medium_key, seen_voxels, solve, transport_direct, voxels_seen
 from .results import Solution
 from .scene import Scene
 
@@ -113,7 +114,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
         # the first and all the light of the others (a map's sun), whose first scattering the
         # gather cannot make (docs/METHOD.md, "Gathered last bounce")
         own = solution.unscattered | regions
-        grid, spherical = field_bundles(solution)
+        grid, spherical = field_bundles(gathered_fields(solution))
         eye = np.asarray(cam.origin, np.float64)
         # the gather is light transport: it sees the capped density, as the walk did
         transport = med.transport_medium()
@@ -204,6 +205,28 @@ def field_bundles(solution: Solution) -> tuple[tuple, tuple]:
             np.ascontiguousarray(solution.lobe_cap, np.float64))
     pts = solution.points
     return grid, (pts.fields, pts.offset, pts.shape, pts.params, pts.frame, pts.full)
+
+
+def gathered_fields(solution: Solution) -> Solution:
+    """The solution as the gathered last bounce reads it: where the walk solved a capped medium,
+    each sun's unscattered light through the capped density it walked (pipeline.transport_direct)
+    in place of the true one, the scattered rest kept (phi - direct + direct', the same for phi a:
+    the unscattered lobe has a = 1; docs/METHOD.md Eq. 25g). The camera's own samples keep the
+    true one. Made once per fields and kept with the solution (Solution.cache); the solution
+    itself where nothing was capped."""
+    key = ("transport_direct", id(solution.phi), id(solution.phia), id(solution.direct))
+    kept = solution.cache.get("transport_direct")
+    if kept is None or kept[0] != key:
+        capped = transport_direct(solution)
+        if capped is None:
+            return solution
+        change = capped - solution.direct
+        # holding the fields keeps the ids in the key theirs
+        kept = (key, (solution.phi, solution.phia, solution.direct),
+                (solution.phi + change, solution.phia + change, capped))
+        solution.cache["transport_direct"] = kept
+    phi, phia, direct = kept[2]
+    return dataclasses.replace(solution, phi=phi, phia=phia, direct=direct)
 
 
 def only_lights(keep: np.ndarray, lights: tuple, grid: tuple, spherical: tuple) -> tuple[tuple, tuple]:

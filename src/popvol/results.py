@@ -64,6 +64,10 @@ class WalkResult:
     (the six-ordinate walk only; phia is then its component along the axis d). A six-ordinate
     walk given the cells read leaves phi, phia and flux 0 in the empty cells it crossed
     without visits (walk.skipped_cells); ``direct`` is the unscattered light everywhere.
+    direct_transport: float32 (domain shape), where the walk solved a capped medium
+    (medium.transport_medium) and ``direct`` was swapped for the unscattered light through the
+    true density (walk.replace_direct): the walk's own, through the capped density, which the
+    gathered last bounce scatters (docs/METHOD.md Eq. 25g); None otherwise.
     """
 
     phi: np.ndarray
@@ -80,6 +84,7 @@ class WalkResult:
     diffusion: object = None
     seconds_diffusion: float = 0.0
     flux: np.ndarray | None = None
+    direct_transport: np.ndarray | None = None
     cells_sent: int = 0        # the sweeps' cells that sent a packet, summed over the sweeps (the work
                                # they did; the six-ordinate sweeps count packets, up to six a cell;
                                # a Jacobi wavefront does not count them)
