@@ -26,19 +26,19 @@ def small_scene(**method):
 @pytest.mark.parametrize("s_up, s_v, path", [(0.0, 0.0, 1.0), (1e-4, 3e-4, 2.0), (0.003, 0.001, 1.5), (0.3, 0.9, 1.0),
                                              (2.0, 5.0, 1.0), (40.0, 30.0, 1.0), (0.0, 4.0, 1.0), (3.0, 0.0, 1.0)])
 def test_segment_integrates_a_linear_source_function_exactly(s_up, s_v, path):
-    """A gathered segment's emission (docs/METHOD.md Eq. 25f): the closed form of
-    kernels.gather._segment and _emission against the twin's Gauss-Legendre quadrature of sigma_t
+    """A gathered segment's emission (docs/METHOD.md Eq. 25f): the closed-form weights of
+    kernels.gather._segment against the twin's Gauss-Legendre quadrature of sigma_t
     linear along the path and the source function J = q / sigma_t linear in its optical depth,
     from a thin segment (the series) to one of 35 mean free paths and segments with an empty end;
     a J the same at both ends adds J (1 - T) (the equilibrium with a uniform sky)."""
     from popvol.kernels import gather as KG
     j_up, j_v = 0.7, 0.2
-    t, b_up, b_v = KG._segment(s_up, s_v, path)
+    t, a_up, a_v = KG._segment(s_up, s_v, path)
     tau = 0.5 * (s_up + s_v) * path
     assert t == pytest.approx(np.exp(-tau), rel=1e-12)
-    got = KG._emission(j_up * s_up, s_up, j_v * s_v, s_v, b_up, b_v)
+    got = a_up * j_up * s_up + a_v * j_v * s_v
     assert got == pytest.approx(ref._linear_source(j_up * s_up, s_up, j_v * s_v, s_v, path), rel=1e-7, abs=1e-15)
-    same = KG._emission(0.5 * s_up, s_up, 0.5 * s_v, s_v, b_up, b_v)
+    same = a_up * 0.5 * s_up + a_v * 0.5 * s_v
     assert same == pytest.approx(0.5 * (1.0 - t), rel=1e-7, abs=1e-15)
     if tau > 20:            # the voxel's own first mean free paths: J(v) + (J(up) - J(v)) / tau
         assert got == pytest.approx(j_v + (j_up - j_v) / tau, rel=1e-6)

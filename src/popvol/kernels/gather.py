@@ -284,30 +284,31 @@ def _slices(medium, grids, across_z, w):
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def _segment(s_up, sig, path):
-    """(T, b_up, b_v) of the path from the point upstream (sigma_t s_up) to the voxel (sig),
+    """(T, a_up, a_v) of the path from the point upstream (sigma_t s_up) to the voxel (sig),
     sigma_t linear along it (module docstring): T = exp(-tau), tau = (s_up + sig) / 2 path its
-    optical depth, and the weights of the source function upstream and at the voxel when it is
-    linear in optical depth (:func:`_emission`):
+    optical depth, and the weights of the emission per unit length upstream and at the voxel,
+    a_up = b_up / sigma_t(up) and a_v = b_v / sigma_t(v), so that the segment adds a_up q(up) +
+    a_v q(v) = b_up J(up) + b_v J(v) with the source function J = q / sigma_t linear in optical
+    depth:
       b_up = (1 - T (1 + tau)) / tau,  b_v = 1 - T - b_up
-    (their series tau (1/2 - tau/3 + tau^2/8), tau (1/2 - tau/6 + tau^2/24) where tau is small)."""
+    (their series tau (1/2 - tau/3 + tau^2/8), tau (1/2 - tau/6 + tau^2/24) where tau is small).
+    Where sigma_t is 0 at one end, J there is the other end's: its weight goes to the other end."""
     tau = 0.5 * (s_up + sig) * path
     if tau < 1e-2:
         t = math.exp(-tau) if tau > 0.0 else 1.0     # no call in empty space
-        return t, tau * (0.5 - tau * (1.0 / 3.0 - tau / 8.0)), tau * (0.5 - tau * (1.0 / 6.0 - tau / 24.0))
-    t = math.exp(-tau)
-    b_up = (1.0 - t * (1.0 + tau)) / tau
-    return t, b_up, 1.0 - t - b_up
-
-
-@nb.njit(inline="always", fastmath=True, cache=True)
-def _emission(q_up, s_up, q_v, s_v, b_up, b_v):
-    """The light a segment emits toward its end (module docstring): b_up J(up) + b_v J(v), the
-    source function J = q / sigma_t (where sigma_t is 0 at one end, the other end's J)."""
-    j_v = q_v / s_v if s_v > 0.0 else 0.0
-    j_up = q_up / s_up if s_up > 0.0 else j_v
-    if s_v <= 0.0:
-        j_v = j_up
-    return b_up * j_up + b_v * j_v
+        b_up = tau * (0.5 - tau * (1.0 / 3.0 - tau / 8.0))
+        b_v = tau * (0.5 - tau * (1.0 / 6.0 - tau / 24.0))
+    else:
+        t = math.exp(-tau)
+        b_up = (1.0 - t * (1.0 + tau)) / tau
+        b_v = 1.0 - t - b_up
+    if sig > 0.0:
+        if s_up > 0.0:
+            return t, b_up / s_up, b_v / sig
+        return t, 0.0, (b_up + b_v) / sig
+    if s_up > 0.0:
+        return t, (b_up + b_v) / s_up, 0.0
+    return t, 0.0, 0.0
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -351,7 +352,7 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                     j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated)
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
-                t = b_up = b_v = s_up = 0.0
+                t = a_up = a_v = 0.0
                 for ch in range(n_out):
                     sig = scale[ch] * rho
                     qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
@@ -368,12 +369,11 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                     else:                           # upstream of the grid: what enters it
                         l_up, q_up, ld_up, qd_up = boundary[ch], 0.0, 0.0, 0.0
                     if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
-                        s_up = sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch)
-                        t, b_up, b_v = _segment(s_up, sig, path)
-                    cur[0, p, q, ch] = l_up * t + _emission(q_up, s_up, qv, sig, b_up, b_v)
+                        t, a_up, a_v = _segment(sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch), sig, path)
+                    cur[0, p, q, ch] = l_up * t + q_up * a_up + qv * a_v
                     cur[1, p, q, ch] = qv
                     cur[2, p, q, ch] = sig
-                    cur[3, p, q, ch] = ld_up * t + _emission(qd_up, s_up, qd, sig, b_up, b_v)
+                    cur[3, p, q, ch] = ld_up * t + qd_up * a_up + qd * a_v
                     cur[4, p, q, ch] = qd
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
@@ -462,7 +462,7 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                 q0, q1, q2 = e0 * j0, e1 * j1, e2 * j2
                 r0, r1, r2 = e0 * d0, e1 * d1, e2 * d2
                 if step == 0:
-                    t, b_up, b_v = _segment(sig, sig, path)
+                    t, a_up, a_v = _segment(sig, sig, path)
                     up[0], up[1], up[2] = b0, b1, b2
                     up[3], up[4], up[5] = q0, q1, q2
                     up[7], up[8], up[9] = 0.0, 0.0, 0.0
@@ -472,18 +472,18 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                     e00, e01, e10, e11 = (1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv
                     for n in range(n_up):
                         up[n] = e00 * prev[i0, k0, n] + e01 * prev[i0, k1, n] + e10 * prev[i1, k0, n] + e11 * prev[i1, k1, n]
-                    t, b_up, b_v = _segment(up[6], sig, path)
+                    t, a_up, a_v = _segment(up[6], sig, path)
                 else:                                       # upstream of the grid: what enters it
-                    t, b_up, b_v = _segment(0.0, sig, path)
+                    t, a_up, a_v = _segment(0.0, sig, path)
                     up[0], up[1], up[2] = b0, b1, b2
                     for n in range(3, 13):
                         up[n] = 0.0
-                l0 = up[0] * t + _emission(up[3], up[6], q0, sig, b_up, b_v)
-                l1 = up[1] * t + _emission(up[4], up[6], q1, sig, b_up, b_v)
-                l2 = up[2] * t + _emission(up[5], up[6], q2, sig, b_up, b_v)
-                m0 = up[7] * t + _emission(up[10], up[6], r0, sig, b_up, b_v)
-                m1 = up[8] * t + _emission(up[11], up[6], r1, sig, b_up, b_v)
-                m2 = up[9] * t + _emission(up[12], up[6], r2, sig, b_up, b_v)
+                l0 = up[0] * t + up[3] * a_up + q0 * a_v
+                l1 = up[1] * t + up[4] * a_up + q1 * a_v
+                l2 = up[2] * t + up[5] * a_up + q2 * a_v
+                m0 = up[7] * t + up[10] * a_up + r0 * a_v
+                m1 = up[8] * t + up[11] * a_up + r1 * a_v
+                m2 = up[9] * t + up[12] * a_up + r2 * a_v
                 cur[p, q, 0], cur[p, q, 1], cur[p, q, 2] = l0, l1, l2
                 cur[p, q, 3], cur[p, q, 4], cur[p, q, 5] = q0, q1, q2
                 cur[p, q, 6] = sig
@@ -566,9 +566,9 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
                         qd_up = _lerp2(prev, 4, i0, i1, j0, j1, fu, fv)
                 else:                                       # upstream of the grid: what enters it
                     l_up, q_up, s_up, ld_up, qd_up = boundary, 0.0, 0.0, 0.0, 0.0
-                t, b_up, b_v = _segment(s_up, sig, path)
-                light = l_up * t + _emission(q_up, s_up, qv, sig, b_up, b_v)
-                light_sun = ld_up * t + _emission(qd_up, s_up, qd, sig, b_up, b_v)
+                t, a_up, a_v = _segment(s_up, sig, path)
+                light = l_up * t + q_up * a_up + qv * a_v
+                light_sun = ld_up * t + qd_up * a_up + qd * a_v
                 cur[0, p, q] = light
                 cur[1, p, q] = qv
                 cur[2, p, q] = sig
