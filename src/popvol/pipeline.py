@@ -339,6 +339,12 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                             phid[i, ch], flux[i, ch])
             lobe_cap[i] = 1.0
             return ds, time.perf_counter() - t0
+        if ds.result.scattered is not None:
+            # a point light's scattered light, walked on its box (its unscattered light stays in
+            # its spherical domain: point_fields)
+            ordinate_fields(ds.result.scattered, ds.domain.grid, med, needed, (), phid[i, ch], flux[i, ch])
+            lobe_cap[i] = 1.0
+            return ds, time.perf_counter() - t0
         d, grid = ds.result.diffusion, ds.diffusion_grid
         diffuse = ()                    # (field, out) pairs of the diffusion stage
         if d is not None:

@@ -68,6 +68,10 @@ class WalkResult:
     (medium.transport_medium) and ``direct`` was swapped for the unscattered light through the
     true density (walk.replace_direct): the walk's own, through the capped density, which the
     gathered last bounce scatters (docs/METHOD.md Eq. 25g); None otherwise.
+    scattered: a point light's light that scattered at least once, walked by the ordinates on
+    a box of the medium (lights.point, docs/METHOD.md "A point light's ordinates"): that walk's
+    own result on the domain's ``grid`` (its ``direct`` None), while phi, phia and direct here
+    hold the unscattered light alone; None otherwise.
     """
 
     phi: np.ndarray
@@ -85,6 +89,7 @@ class WalkResult:
     seconds_diffusion: float = 0.0
     flux: np.ndarray | None = None
     direct_transport: np.ndarray | None = None
+    scattered: "WalkResult | None" = None
     cells_sent: int = 0        # the sweeps' cells that sent a packet, summed over the sweeps (the work
                                # they did; the six-ordinate sweeps count packets, up to six a cell;
                                # a Jacobi wavefront does not count them)

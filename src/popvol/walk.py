@@ -173,6 +173,103 @@ def _ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) ->
     return table.astype(np.float32)
 
 
+#: texels per side of each face of :func:`direction_split`'s cube map (about 5.6 degrees each)
+SPLIT_TEXELS = 16
+#: quadrature directions over the sphere of :func:`direction_split`'s tables
+SPLIT_QUADRATURE = 8192
+#: anisotropies at which :func:`direction_split` is tabulated: -1 .. 1 in steps of this
+SPLIT_G_STEP = 0.05
+
+
+def _cube_axes(face: int) -> tuple[int, float, int, int]:
+    """A cube map's face (2 axis + (the component is negative)): (axis, its sign, the two other
+    axes in increasing order)."""
+    axis = face // 2
+    others = [a for a in range(3) if a != axis]
+    return axis, -1.0 if face % 2 else 1.0, others[0], others[1]
+
+
+@functools.lru_cache(maxsize=64)
+def _direction_split(n_ordinates: int, g: float) -> np.ndarray:
+    """float32 (6, T, T, 2, n_ordinates), T = SPLIT_TEXELS: for a lobe HG_g about the direction
+    of each texel of a cube map (face f (:func:`_cube_axes`), texel (s, t) of the two other
+    components over the largest's absolute value, in [-1, 1]), [..., 0, n] its share in
+    ordinate n's part of the sphere (the directions nearer to e_n than to any other of the first
+    ``n_ordinates`` of :data:`ORDINATES18`) and [..., 1, n] that share times the part's mean
+    cosine about e_n, as the walks' own split (:func:`ordinate18_table`) gives a lobe about an
+    ordinate. By quadrature over SPLIT_QUADRATURE directions of a Fibonacci lattice (equal
+    areas); the shares of a lobe sum to 1."""
+    axes = ORDINATES18[:n_ordinates] / np.linalg.norm(ORDINATES18[:n_ordinates], axis=1)[:, None]
+    i = np.arange(SPLIT_QUADRATURE) + 0.5
+    z = 1.0 - 2.0 * i / SPLIT_QUADRATURE
+    ring = np.sqrt(1.0 - z * z)
+    turn = np.pi * (1.0 + np.sqrt(5.0)) * i
+    omega = np.stack([ring * np.cos(turn), ring * np.sin(turn), z], axis=-1)
+    dots = omega @ axes.T
+    part = np.argmax(dots, axis=1)
+    member = np.zeros((SPLIT_QUADRATURE, n_ordinates))
+    member[np.arange(SPLIT_QUADRATURE), part] = 1.0
+    cosine = member * dots[np.arange(SPLIT_QUADRATURE), part][:, None]
+    s = (np.arange(SPLIT_TEXELS) + 0.5) / SPLIT_TEXELS * 2.0 - 1.0
+    table = np.zeros((6, SPLIT_TEXELS, SPLIT_TEXELS, 2, n_ordinates))
+    g = float(np.clip(g, -0.999, 0.999))
+    for face in range(6):
+        axis, sign, a1, a2 = _cube_axes(face)
+        d = np.zeros((SPLIT_TEXELS, SPLIT_TEXELS, 3))
+        d[..., axis] = sign
+        d[..., a1], d[..., a2] = np.meshgrid(s, s, indexing="ij")
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        f = hg.f_hg(d.reshape(-1, 3) @ omega.T, g)                  # (T T, Q)
+        total = f.sum(axis=1, keepdims=True)
+        table[face, :, :, 0] = (f @ member / total).reshape(SPLIT_TEXELS, SPLIT_TEXELS, n_ordinates)
+        table[face, :, :, 1] = (f @ cosine / total).reshape(SPLIT_TEXELS, SPLIT_TEXELS, n_ordinates)
+    return table.astype(np.float32)
+
+
+def direction_split(directions: np.ndarray, g: np.ndarray, n_ordinates: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lobes HG_g about any ``directions`` (float64 (m, 3), unit, in the domain's frame) split
+    among the ordinates of the ordinates' walks as they split a lobe about an ordinate (each
+    part goes into the ordinate whose part of the sphere it falls in, with its mean cosine about
+    that ordinate's direction): (share, share times mean cosine), float32 (m, n_ordinates).
+    Looked up in :func:`_direction_split`'s cube map, bilinear between the texels of a
+    direction's face, and linear in g (float (m,), clipped to [-1, 1]) between the
+    anisotropies tabulated SPLIT_G_STEP apart."""
+    d = np.asarray(directions, np.float64)
+    m = len(d)
+    absd = np.abs(d)
+    axis = np.argmax(absd, axis=1)
+    rows = np.arange(m)
+    face = 2 * axis + (d[rows, axis] < 0)
+    big = np.maximum(absd[rows, axis], 1e-300)
+    a1 = np.where(axis == 0, 1, 0)
+    a2 = np.where(axis == 2, 1, 2)
+    def texels(c):
+        """The two texels about each coordinate c (over the largest's absolute value) and the
+        weight of the upper one (clamped at the face's edges)."""
+        x = np.clip((c / big + 1.0) * 0.5 * SPLIT_TEXELS - 0.5, 0.0, SPLIT_TEXELS - 1.0)
+        i0 = np.minimum(x.astype(np.int64), SPLIT_TEXELS - 2)
+        return i0, x - i0
+    s0, fs = texels(d[rows, a1])
+    t0, ft = texels(d[rows, a2])
+    corners = [(s0 + i, t0 + j, (fs if i else 1.0 - fs) * (ft if j else 1.0 - ft)) for i in (0, 1) for j in (0, 1)]
+    x = (np.clip(np.broadcast_to(np.asarray(g, np.float64), (m,)), -1.0, 1.0) + 1.0) / SPLIT_G_STEP
+    n_g = int(round(2.0 / SPLIT_G_STEP))
+    lo = np.minimum(x.astype(np.int64), n_g - 1)
+    w = (x - lo)[:, None]
+    share = np.zeros((m, n_ordinates), np.float32)
+    moment = np.zeros((m, n_ordinates), np.float32)
+    for b in np.unique(np.concatenate([lo, lo + 1])):
+        weight = np.where(lo == b, 1.0 - w[:, 0], 0.0) + np.where(lo + 1 == b, w[:, 0], 0.0)
+        at = np.flatnonzero(weight > 0)
+        if at.size == 0:
+            continue
+        table = _direction_split(n_ordinates, round(-1.0 + b * SPLIT_G_STEP, 6))
+        part = sum(wc[at, None, None] * table[face[at], s[at], t[at]] for s, t, wc in corners)   # (k, 2, n)
+        share[at] += (weight[at, None] * part[:, 0]).astype(np.float32)
+        moment[at] += (weight[at, None] * part[:, 1]).astype(np.float32)
+    return share, moment
+
+
 def anisotropy_bins(n: int = ANISOTROPY_BINS) -> np.ndarray:
     """float64 (n,): the binned wavefront's anisotropies, evenly spaced over [-1, 1] (n odd, so
     that a = 0 is a bin; a = 1 always is, for collimated light)."""
@@ -399,6 +496,23 @@ def inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally) -> tuple[float, f
     return absorbed, float(np.sum(injection, dtype=np.float64))
 
 
+def place(W, Wa, cell, pending, source) -> tuple[float, float]:
+    """Packets pending at cell centres at the start of an ordinates walk, in place of
+    :func:`inject`'s: ``source`` = (index, int (3, k), the cells (none skipped); power, float32
+    (k, n_ordinates), per ordinate; moment, the same times each lobe's anisotropy), written
+    into the first n_ordinates columns of W, Wa. Marks their rows ``pending``. Returns (0, the
+    power placed)."""
+    index, power, moment = source
+    c = cell[tuple(index)]
+    if (c < 0).any():
+        raise ValueError("a source packet in a skipped cell")
+    n = power.shape[1]
+    W[c, :n] = power
+    Wa[c, :n] = moment
+    pending[index[0], index[1]] = 1
+    return 0.0, float(np.sum(power, dtype=np.float64))
+
+
 def sweep_order(it: int) -> tuple[bool, bool, bool]:
     """Whether sweep ``it`` of an ordinates walk runs forward along d, u and v: every sweep
     reverses all three, so with upwind sweeps every ordinate is sent every second sweep
@@ -417,7 +531,7 @@ def ordinates_ahead(offsets: np.ndarray, forward: tuple[bool, bool, bool]) -> np
 
 
 def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
-                   skip=None) -> tuple[int, float, float, int]:
+                   skip=None, source=None) -> tuple[int, float, float, int]:
     """The six-ordinate walk (kernels/ordinates.py) of :func:`walk_box` (``Sh``: float32, the
     domain's shape, :func:`scatter_factor`), every order of scattering, by thresholded
     Gauss-Seidel sweeps (:func:`sweep_until_converged`, every packet slot of every cell counted
@@ -431,7 +545,8 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     packet. The pending state W, Wa is float32 (m, 12), one row per cell not skipped (its
     index in ``cell``, int32, the domain's shape, -1 where skipped): the six ordinates, then
     per ordinate o the light that scattered in the cell's half of its way in along e_o
-    (kernels/ordinates.py)."""
+    (kernels/ordinates.py). ``source``: packets pending at the start in place of the injected
+    light (:func:`place`)."""
     shape = Th.shape
     if max(shape) > KC.MAX_RUN:
         raise ValueError(f"the six-ordinate walk takes domains of at most {KC.MAX_RUN} cells a side, not {shape}")
@@ -450,7 +565,8 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     W = np.zeros((m, 12), np.float32)
     Wa = np.zeros_like(W)
     pending = np.zeros(shape[:2], np.uint8)
-    absorbed, injected = inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally)
+    absorbed, injected = (inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally) if source is None
+                          else place(W, Wa, cell, pending, source))
 
     row_work = np.zeros(shape[1])
     lanes = numba.get_num_threads()
@@ -469,7 +585,7 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
 
 
 def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
-                     skip=None) -> tuple[int, float, float, int]:
+                     skip=None, source=None) -> tuple[int, float, float, int]:
     """The eighteen-ordinate walk (kernels/ordinates18.py) of :func:`walk_box`: as
     :func:`walk_ordinates` with a direction per face and per edge of the lattice, visiting
     every cell of a pending row that is not skipped. The injected light enters ordinate +d of
@@ -482,7 +598,8 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     the ``skip`` cells (:func:`skipped_cells`; None: none), which hold no packet and which light
     crosses along its ordinate without a visit. The pending state W, Wa is float32 (m, 18), one
     row per cell not skipped (its index in ``cell``, int32, the domain's shape, -1 where
-    skipped)."""
+    skipped). ``source``: packets pending at the start in place of the injected light
+    (:func:`place`)."""
     shape = Th.shape
     n = int(np.prod(shape))
     kept = np.ones(shape, np.bool_) if skip is None else ~np.asarray(skip, np.bool_)
@@ -509,7 +626,8 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     Wa = np.zeros_like(W)
     landing = np.full((m, 18), KO18.UNKNOWN, np.int32)
     pending = np.zeros(shape[:2], np.uint8)
-    absorbed, injected = inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally)
+    absorbed, injected = (inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally) if source is None
+                          else place(W, Wa, cell, pending, source))
     flat = W.reshape(m, 1, 18)
     row_work = np.zeros(shape[1])
     held_at = np.zeros((GROUPS18, held, 3), np.int64)
@@ -533,7 +651,7 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
              max_iterations: int = 0, periodic: bool = False, progress=None,
              handover: tuple[float, np.ndarray] | None = None, scatter: np.ndarray | None = None,
-             read: np.ndarray | None = None, ordinates: int = 6) -> WalkResult:
+             read: np.ndarray | None = None, ordinates: int = 6, source=None) -> WalkResult:
     """Walk light injected into slice k = 0 of a rectilinear domain until (almost) all of it
     has left.
 
@@ -568,6 +686,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
             ignore it.
         ordinates: 6 or 18, the directions of the "ordinates" solver: the six faces of the
             lattice (:func:`walk_ordinates`) or its faces and edges (:func:`walk_ordinates18`).
+        source: the "ordinates" solver only: packets pending at cell centres at the start
+            (:func:`place`; a point light's first scattering), in place of the injected light;
+            ``injection`` is then ignored and may be None, and ``injected`` is their power.
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -583,7 +704,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
     W = np.zeros(shape, np.float32)
     phi = np.zeros(shape, np.float32)
     phia = np.zeros(shape, np.float32)
-    budget = Budget(injected=float(np.sum(injection, dtype=np.float64)))
+    if source is not None and solver != "ordinates":
+        raise ValueError("only the ordinates' walks start from a source of packets")
+    budget = Budget(injected=float(np.sum(injection if source is None else source[1], dtype=np.float64)))
     tally = np.zeros(4)
     target = tolerance * budget.injected
     t0 = time.perf_counter()
@@ -614,10 +737,11 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         skip = skipped_cells(Th, Dh, Sh, read) if read is not None else None
         if ordinates == 18:
             it, in_flight, budget.absorbed, sent = walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi,
-                                                                    flux, tally, target, cap, progress, skip)
+                                                                    flux, tally, target, cap, progress, skip,
+                                                                    source)
         else:
             it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
-                                                                  tally, target, cap, progress, skip)
+                                                                  tally, target, cap, progress, skip, source)
         phia = flux[0]
     elif solver == "binned":
         it, in_flight, budget.absorbed = walk_binned(Th, Dh, injection, a0, rule, periodic, inv_area, phi, phia,

@@ -1,11 +1,17 @@
 """A point light and its domain: cells in spherical coordinates about the light, the principal
 ordinate radial (docs/METHOD.md, "Walk").
 
-The walk sweeps along r (kernels/spherical.py) from unit intensity at the light. The walk's
-fields stay in the spherical domain, multiplied by r^2, and the renderer looks them up there per
-sample (:meth:`SphericalDomain.render_block`). Light handed over goes to a world-aligned
-rectilinear grid for the diffusion stage (:meth:`SphericalDomain.hand_over`). Point lights
-always use the sweep solver (experimental.solver = "jacobi" applies to suns only).
+With experimental.point_walk = "ordinates" (and solver = "ordinates") the spherical domain
+holds the unscattered light only, r^2 phi_dir = exp(-tau) along each radius, and the light's
+first scattering is the source of an ordinates walk on a world-aligned box over the medium
+(:meth:`SphericalDomain.first_scattering`; docs/METHOD.md, "A point light's ordinates"), whose
+fields the renderer reads on the medium's grid, as a sun's scattered light.
+
+Otherwise the walk sweeps along r (kernels/spherical.py) from unit intensity at the light. The
+walk's fields stay in the spherical domain, multiplied by r^2, and the renderer looks them up
+there per sample (:meth:`SphericalDomain.render_block`). Light handed over goes to a
+world-aligned rectilinear grid for the diffusion stage (:meth:`SphericalDomain.hand_over`).
+(experimental.solver = "jacobi" and "binned" apply to suns only: a point light sweeps.)
 """
 from __future__ import annotations
 
@@ -18,14 +24,15 @@ import numpy as np
 
 from .. import check
 from ..diffusion import coefficients
-from ..domains import check_memory, directional_domain, light_frame, optics, resample_medium
+from ..domains import (DirectionalDomain, check_memory, directional_domain, grow, light_frame, optics,
+                       resample_medium)
 from ..errors import PopvolError
 from ..kernels import propagation as KP
 from ..kernels import spherical as KS
 from ..medium import Medium
 from ..results import Budget, WalkResult
-from ..walk import (default_max_iterations, handover_arrays, medium_factors, split_table32,
-                    sweep_until_converged)
+from ..walk import (default_max_iterations, direction_split, handover_arrays, medium_factors, scatter_factor,
+                    split_table32, sweep_until_converged, walk_box)
 from .base import HandOver, Light
 
 
@@ -71,7 +78,14 @@ class PointLight(Light):
         check_point_distance(medium, self.position, f"{src}: {name}")
 
     def domain(self, medium, method) -> "SphericalDomain":
-        return spherical_domain(medium, self.position, method.resolution)
+        """Its spherical domain; with the ordinates' walks and ``method.point_walk =
+        "ordinates"``, with a box over the medium (along
+        the world's axes, ``method.resolution`` cells along its longest side, cropped as a
+        sun's) for its scattered light."""
+        sphere = spherical_domain(medium, self.position, method.resolution)
+        if method.solver == "ordinates" and method.point_walk == "ordinates":
+            sphere.grid = directional_domain(medium, BOX_AXIS, method.resolution)
+        return sphere
 
     def table(self) -> dict:
         return {"type": self.type, "position": [float(x) for x in self.position],
@@ -113,6 +127,8 @@ class SphericalDomain:
         box: float64 (2, 3), the medium's box (lo, hi), or None. The box is convex, so light
             that has left it never comes back: the sweep counts what reaches a cell well
             beyond it as escaped instead of walking it on through empty space (exit_shells).
+        grid: with the ordinates' walks, the rectilinear domain over the medium on which the
+            light that scattered is walked (:meth:`walk`); None: the sweeps walk it all here.
     """
 
     centre: np.ndarray
@@ -126,6 +142,7 @@ class SphericalDomain:
     shape: tuple[int, int, int]
     full: bool
     box: np.ndarray | None = None
+    grid: DirectionalDomain | None = None
 
     def exit_shells(self) -> np.ndarray:
         """int32 (n_theta, n_phi): per ray of cells, the first shell beyond the medium's box
@@ -188,23 +205,142 @@ class SphericalDomain:
 
     def resample(self, medium, channel: int = 0):
         """sigma_t, sigma_s, g of colour ``channel`` at the cells' centres, float32
-        (n_r, n_theta, n_phi) each (per-voxel albedo and g clamped to the edge outside the grid)."""
+        (n_r, n_theta, n_phi) each (per-voxel albedo and g clamped to the edge outside the
+        grid); with a ``grid``, a fourth item: its own (domains.resample_medium)."""
         def grid(values, clamp):
             out = np.empty(self.shape, np.float32)
             KS.resample_spherical(values, 1.0 / medium.voxel_size, medium.origin, self.centre,
                                   self.frame, self.params, self.shape, clamp, out)
             return out
-        return optics(medium, grid, self.shape, channel)
+        sphere = optics(medium, grid, self.shape, channel)
+        return sphere if self.grid is None else sphere + (resample_medium(medium, self.grid, channel),)
 
     def cells_read(self, medium, seen):
-        """None: the sweeps visit every cell (the renderer reads the fields in this domain)."""
-        return None
+        """The ``grid``'s cells read (its walk skips the empty space outside them), or None
+        without one: the sweeps visit every cell (the renderer reads their fields here)."""
+        return None if self.grid is None else self.grid.cells_read(medium, seen)
+
+    def lookup(self, field: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """float64 (m,): ``field`` (the domain's shape) at world points x (m, 3), trilinear in
+        the continuous cell index, clamped in r and theta, periodic in phi on a full sphere (the
+        renderer's kernels.render.point_lookup, in NumPy)."""
+        local = (np.asarray(x, np.float64) - self.centre) @ self.frame.T
+        r = np.linalg.norm(local, axis=1)
+        theta = np.arccos(np.clip(local[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
+        phi = np.arctan2(local[:, 1], local[:, 0])
+        if self.full:
+            phi = np.where(phi < 0.0, phi + 2.0 * np.pi, phi)
+        q = ((r - self.r0) / self.dr - 0.5, (theta - self.theta0) / self.dtheta - 0.5,
+             (phi - self.phi0) / self.dphi - 0.5)
+        corners = []
+        for axis, (qa, n) in enumerate(zip(q, self.shape)):
+            if axis == 2 and self.full:
+                lo = np.floor(qa)
+                f = qa - lo
+                i0 = lo.astype(np.int64) % n
+                corners.append((i0, (i0 + 1) % n, f))
+            else:
+                qa = np.clip(qa, 0.0, n - 1.0)
+                i0 = np.minimum(qa.astype(np.int64), max(n - 2, 0))
+                corners.append((i0, np.minimum(i0 + 1, n - 1), qa - i0))
+        out = np.zeros(len(local))
+        for a in range(8):
+            k, i, j = (c[1] if a & bit else c[0] for c, bit in zip(corners, (4, 2, 1)))
+            w = np.ones(len(local))
+            for c, bit in zip(corners, (4, 2, 1)):
+                w *= c[2] if a & bit else 1.0 - c[2]
+            out += w * field[k, i, j]
+        return out
+
+    def first_scattering(self, direct: np.ndarray, sigma_t: np.ndarray, sigma_s: np.ndarray, grid_optics,
+                         n_ordinates: int):
+        """The light's first scattering, per unit intensity, as packets pending at the centres
+        of the ``grid``'s cells with medium in or beside them, split among the ordinates
+        (walk.place's source: index, power, moment).
+
+        Each cell of this domain scatters ``(sigma_s / sigma_t) (E_in - E_out) Omega``, E =
+        exp(-tau) where its ray enters and leaves it (``direct`` times r^2 at its centre, times
+        exp(+-sigma_t dr / 2)), so the power first scattered along a ray adds up to the albedo
+        times what the ray loses, however thick the cells. That over the cell's volume, times
+        r^2, is smooth (sigma_s exp(-tau) in a thin cell) and is interpolated to the grid's
+        centres (:meth:`lookup`); a grid cell scatters it times 1 / r^2 h^3 at its centre, or,
+        where that is within NEAR_CELLS cells of the light (whose light is first scattered
+        mostly near it), what the rays lose inside it (:meth:`scattered_in_cubes`). Its lobe,
+        HG_g about the light's direction n, is split as the walks split a lobe
+        (walk.direction_split)."""
+        grid = self.grid
+        _, grid_s, g = grid_optics
+        lo = self.r0 + np.arange(self.shape[0]) * self.dr
+        hi = lo + self.dr
+        r = self.radii
+        albedo = np.where(sigma_t > 0.0, sigma_s / np.maximum(sigma_t, 1e-30), 0.0)
+        loss = 2.0 * direct * np.sinh(0.5 * sigma_t * self.dr)        # (E_in - E_out) / r^2
+        density = albedo * loss * (3.0 * r ** 4 / (hi ** 3 - lo ** 3))[:, None, None]
+        index = np.nonzero(grow(grid_s > 0.0))        # never skipped (walk.skipped_cells)
+        x = grid.index_to_world(np.stack(index, axis=-1).astype(np.float64))
+        d = x - self.centre
+        dist = np.linalg.norm(d, axis=1)
+        inv_r2 = 1.0 / np.maximum(dist, 1e-300) ** 2
+        power = self.lookup(density, x) * inv_r2 * grid.h ** 3
+        near = np.flatnonzero(dist < NEAR_CELLS * grid.h)
+        if near.size:
+            power[near] = self.scattered_in_cubes(sigma_t, sigma_s, d[near] @ grid.frame.T, grid.h)
+        keep = power > 0.0
+        n = np.where(dist[:, None] > 0.0, d / np.maximum(dist, 1e-300)[:, None], [1.0, 0.0, 0.0]) @ grid.frame.T
+        index = tuple(i[keep] for i in index)
+        share, moment = direction_split(n[keep], g[index], n_ordinates)
+        power = power[keep, None].astype(np.float32)
+        return np.array(index), share * power, moment * power
+
+    def scattered_in_cubes(self, sigma_t: np.ndarray, sigma_s: np.ndarray, centres: np.ndarray,
+                           h: float) -> np.ndarray:
+        """float64 (m,): the power first scattered per unit intensity in cubes of side h at
+        ``centres`` (m, 3, relative to the light, in the frame of the cubes' axes, which are
+        the grid's), ``int dOmega albedo (exp(-tau_in) - exp(-tau_out))`` over the rays from
+        the light (:func:`cube_chords`, NEAR_DIRECTIONS of them), tau this domain's (sigma_t
+        constant in each cell: linear along r within a shell), the albedo of the cell where
+        the ray leaves the cube's middle."""
+        omega = fibonacci_directions(NEAR_DIRECTIONS)
+        world = omega @ self.grid.frame                  # the directions in the world
+        depth = np.cumsum(sigma_t * self.dr, axis=0) - sigma_t * self.dr   # tau at each shell's inner face
+        albedo = np.where(sigma_t > 0.0, sigma_s / np.maximum(sigma_t, 1e-30), 0.0)
+
+        def cell_at(t, w):
+            """The cell (k, i, j) holding the points at distance t along the rays w (in the
+            world), and how far into its shell each lies."""
+            local = (t[:, None] * w) @ self.frame.T
+            r = np.linalg.norm(local, axis=1)
+            theta = np.arccos(np.clip(local[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
+            phi = np.arctan2(local[:, 1], local[:, 0])
+            if self.full:
+                phi = np.where(phi < 0.0, phi + 2.0 * np.pi, phi)
+            idx = [np.clip(np.floor((v - v0) / dv).astype(np.int64), 0, n - 1)
+                   for v, v0, dv, n in ((r, self.r0, self.dr, self.shape[0]),
+                                        (theta, self.theta0, self.dtheta, self.shape[1]),
+                                        (phi, self.phi0, self.dphi, self.shape[2]))]
+            return tuple(idx), np.clip(r - self.r0 - idx[0] * self.dr, 0.0, self.dr)
+
+        def transmittance(t, w):
+            cell, into = cell_at(t, w)
+            return np.exp(-(depth[cell] + sigma_t[cell] * into))
+
+        out = np.empty(len(centres))
+        for c, centre in enumerate(np.asarray(centres, np.float64)):
+            t_in, t_out = cube_chords(centre, h, omega)
+            hit = t_out > t_in
+            a, b, w = t_in[hit], t_out[hit], world[hit]
+            cell, _ = cell_at(0.5 * (a + b), w)
+            out[c] = 4.0 * np.pi / NEAR_DIRECTIONS * np.sum(albedo[cell] * (transmittance(a, w) - transmittance(b, w)))
+        return out
 
     def walk(self, optics, method, progress=None, read=None) -> WalkResult:
-        """Walk unit intensity from the light out through the shells (always by sweeps).
+        """Walk unit intensity from the light out through the shells (by sweeps), or, with a
+        ``grid``, walk its first scattering there by the ordinates (:meth:`walk_scattered`).
         Budget in W per unit intensity [W/sr]: the light emits 4 pi (full sphere) or the
         domain's solid angle. ``direct`` holds the unscattered fluence, ``handed`` (with the
         diffusion stage) the handed-over power and moment."""
+        if self.grid is not None:
+            return self.walk_scattered(optics, method, progress, read)
         sigma_t, sigma_s, g = optics
         shape = self.shape
         # the sweeps read each face's (T, D), the product of its two cells' half steps
@@ -261,6 +397,26 @@ class SphericalDomain:
                           in_flight <= target, time.perf_counter() - t0, direct=self.direct_fluence(sigma_t),
                           handed=Q if handover is not None else None, cells_sent=sent)
 
+    def walk_scattered(self, optics, method, progress=None, read=None) -> WalkResult:
+        """The ordinates' walk (method.ordinates) of the light's first scattering
+        (:meth:`first_scattering`) on the ``grid`` (``read``: its cells read, whose fields the
+        renderer needs; the empty space outside them is crossed without visits): every order
+        of the scattered light, with no hand-over. Returns the unscattered fluence as phi,
+        phia and direct here, and the grid's walk as ``scattered``, whose budget (in W per unit
+        intensity: injected is the power that first scattered) the result takes."""
+        sigma_t, sigma_s, _, grid_optics = optics
+        t0 = time.perf_counter()
+        direct = self.direct_fluence(sigma_t)
+        source = self.first_scattering(direct, sigma_t, sigma_s, grid_optics, method.ordinates)
+        grid_t, grid_s, grid_g = grid_optics
+        Th, Dh = medium_factors(grid_t, grid_s, grid_g, self.grid.h, method.decay)
+        walk = walk_box(Th, Dh, None, 1.0, self.grid.h, method.rule, "ordinates", method.tolerance,
+                        method.max_iterations, progress=progress, scatter=scatter_factor(grid_s, self.grid.h),
+                        read=read, ordinates=method.ordinates, source=source)
+        return WalkResult(direct.copy(), direct.copy(), walk.budget, walk.iterations, walk.cell_updates,
+                          walk.residual, walk.converged, time.perf_counter() - t0, "ordinates", direct=direct,
+                          cells_sent=walk.cells_sent, scattered=walk)
+
     def direct_fluence(self, sigma_t):
         """The unscattered fluence at the cell centres per unit intensity, float32 (the domain's
         shape): r^2 phi_dir = exp(-tau), tau along the ray from the light, which crosses the
@@ -305,6 +461,54 @@ class SphericalDomain:
         return block.reshape(3, -1)
 
 
+#: cells whose centre is nearer a point light than this many cells get the power its rays lose in
+#: them (SphericalDomain.scattered_in_cubes) as its first scattering, not a centre value
+NEAR_CELLS = 2.0
+#: directions of the quadratures over the rays through a cell near a point light
+NEAR_DIRECTIONS = 4096
+
+
+def fibonacci_directions(n: int) -> np.ndarray:
+    """float64 (n, 3): unit directions of a Fibonacci lattice, each the centre of an equal
+    solid angle 4 pi / n."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    ring = np.sqrt(1.0 - z * z)
+    turn = np.pi * (1.0 + np.sqrt(5.0)) * i
+    return np.stack([ring * np.cos(turn), ring * np.sin(turn), z], axis=-1)
+
+
+def cube_chords(centre: np.ndarray, h: float, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the rays from the origin along ``omega`` (n, 3) enter and leave the axis-aligned
+    cube of side h at ``centre`` (3,): float64 (n,) each, t_in >= 0 (0 where the cube holds the
+    origin); t_out <= t_in where a ray misses it."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / omega                                           # inf where 0
+        t1 = (centre - 0.5 * h) * inv
+        t2 = (centre + 0.5 * h) * inv
+        lo = np.nanmax(np.minimum(t1, t2), axis=1)
+        hi = np.nanmin(np.maximum(t1, t2), axis=1)
+    return np.maximum(lo, 0.0), hi
+
+
+def mean_inverse_square(centres: np.ndarray, h: float) -> np.ndarray:
+    """float64 (m,): 1 / r^2 averaged over cubes of side h (axis-aligned, ``centres`` (m, 3)
+    relative to the origin, the light), exactly as what a ray from the origin crosses:
+    ``int_cube dV / r^2 = int dOmega l(Omega)`` (dV = r^2 dr dOmega), ``l`` the length of the
+    cube's chord along the ray from the origin (:func:`cube_chords`), by quadrature over
+    NEAR_DIRECTIONS directions (:func:`fibonacci_directions`). Finite and smooth where a cube
+    holds the origin, where 1 / r^2 at points of it is not."""
+    omega = fibonacci_directions(NEAR_DIRECTIONS)
+    out = np.empty(len(centres))
+    for c, centre in enumerate(np.asarray(centres, np.float64)):
+        t_in, t_out = cube_chords(centre, h, omega)
+        out[c] = 4.0 * np.pi * np.maximum(t_out - t_in, 0.0).mean() / h ** 3
+    return out
+
+
+#: the axis of the box a point light's scattered light is walked on (domains.light_frame: rows z,
+#: x, y, so its cells are the medium's axes)
+BOX_AXIS = np.array([0.0, 0.0, 1.0])
 #: A cone wider than this (half-angle) becomes a full sphere: its corners would be too distorted.
 MAX_CONE_HALF_ANGLE = np.radians(60.0)
 #: Point lights farther than this many medium diagonals are refused (use a sun): the float32
