@@ -125,3 +125,22 @@ def test_a_source_needs_the_ordinates_and_cells_not_skipped():
     result = walk_box(Th, Th, None, 1.0, 1.0, solver="ordinates", scatter=Th, ordinates=18, source=source)
     assert result.budget.injected == pytest.approx(18.0)
     assert result.budget.escaped == pytest.approx(18.0, rel=1e-6)
+
+
+def test_a_light_on_a_box_cells_centre_scatters_a_finite_power():
+    """The light exactly at the centre of a cell of the box: the cell's power comes from the rays
+    through it, no 1 / 0 (warnings are errors here), and the power placed is still what the rays
+    lose."""
+    from popvol.domains import directional_domain
+    from popvol.lights.point import BOX_AXIS
+    med = blob(n=16, tau=8.0, albedo=1.0)
+    grid = directional_domain(med, BOX_AXIS, ORDINATES.resolution)
+    at = grid.index_to_world(np.array([grid.shape[0] // 2, grid.shape[1] // 2, grid.shape[2] // 2], np.float64))
+    with np.errstate(all="raise"):
+        ds = solve_light(med, PointLight(at, 1.0), ORDINATES)
+    sph = ds.domain
+    omega = np.broadcast_to(sph.solid_angles[:, None], sph.shape[1:])
+    sigma_t = sph.resample(med)[0]
+    last = ds.result.direct[-1] * sph.radii[-1] ** 2 * np.exp(-0.5 * sigma_t[-1] * sph.dr)
+    assert np.isfinite(ds.result.scattered.phi).all()
+    assert ds.result.budget.injected == pytest.approx(float(np.sum(omega * (1.0 - last))), rel=0.02)

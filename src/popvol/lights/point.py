@@ -280,7 +280,7 @@ class SphericalDomain:
         x = grid.index_to_world(np.stack(index, axis=-1).astype(np.float64))
         d = x - self.centre
         dist = np.linalg.norm(d, axis=1)
-        inv_r2 = 1.0 / np.maximum(dist, 1e-300) ** 2
+        inv_r2 = 1.0 / np.maximum(dist * dist, 1e-300)      # cells near the light: scattered_in_cubes
         power = self.lookup(density, x) * inv_r2 * grid.h ** 3
         near = np.flatnonzero(dist < NEAR_CELLS * grid.h)
         if near.size:
