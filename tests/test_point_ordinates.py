@@ -13,6 +13,8 @@ from popvol.renderer import render
 from popvol.scene import Method, Scene
 from popvol.walk import ORDINATES18, direction_split, ordinate18_table, walk_box
 from test_point import blob
+import twins
+from popvol.kernels.sampling import blend_rows
 
 ORDINATES = Method(resolution=20, tolerance=1e-5, point_walk="ordinates")
 
@@ -31,6 +33,17 @@ def test_a_lobe_about_an_ordinate_is_split_as_the_walk_splits_it(o, g):
     assert share.sum() == pytest.approx(1.0, abs=1e-5)
     assert np.abs(share[0] - table[o, k, 0]).max() < 0.015
     assert np.abs(moment[0] - table[o, k, 1]).max() < 0.015
+
+
+def test_blend_rows_kernel_equals_numpy_twin():
+    rng = np.random.default_rng(5)
+    table = rng.random((40, 36)).astype(np.float32)
+    rows = rng.integers(0, 40, (300, 8))
+    weights = rng.random((300, 8)).astype(np.float32)
+    weights[rng.random((300, 8)) < 0.3] = 0.0
+    out = np.empty((300, 36), np.float32)
+    blend_rows(table, rows, weights, out)
+    np.testing.assert_allclose(out, twins.blend_rows(table, rows, weights), rtol=1e-5, atol=1e-6)
 
 
 def test_a_split_lobe_keeps_its_power_and_turns_with_its_direction():
@@ -144,3 +157,11 @@ def test_a_light_on_a_box_cells_centre_scatters_a_finite_power():
     last = ds.result.direct[-1] * sph.radii[-1] ** 2 * np.exp(-0.5 * sigma_t[-1] * sph.dr)
     assert np.isfinite(ds.result.scattered.phi).all()
     assert ds.result.budget.injected == pytest.approx(float(np.sum(omega * (1.0 - last))), rel=0.02)
+
+
+def test_point_walk_ordinates_needs_the_ordinates_solver():
+    from popvol import PopvolError, scene_from_dict
+    with pytest.raises(PopvolError, match=r"experimental\.point_walk = 'ordinates' needs experimental\.solver"):
+        scene_from_dict({"medium": {"type": "procedural", "resolution": 8},
+                         "lights": [{"type": "point", "position": [0, 0, 0]}],
+                         "experimental": {"point_walk": "ordinates", "solver": "sweep"}})

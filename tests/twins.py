@@ -1284,3 +1284,9 @@ def lanes_sum(a, b=None):
             s += ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
         total += s
     return total
+
+
+def blend_rows(table, rows, weights):
+    """Twin of kernels/sampling.py's blend_rows: each output row the weighted sum of the table's
+    rows it names."""
+    return np.einsum("mk,mkw->mw", np.asarray(weights, np.float64), np.asarray(table, np.float64)[rows])

@@ -216,6 +216,9 @@ class _MethodBase:
             setattr(self, k.name, k.check(getattr(self, k.name), src))
         if self.ordinates not in (6, 18):
             raise PopvolError(f"{src}: experimental.ordinates = {self.ordinates} must be 6 or 18")
+        if self.point_walk == "ordinates" and self.solver != "ordinates":
+            raise PopvolError(f"{src}: experimental.point_walk = 'ordinates' needs experimental.solver = "
+                              f"'ordinates' (the default), not {self.solver!r}")
         if self.solver == "ordinates" and self.rule != "moment":
             raise PopvolError(f"{src}: experimental.rule = {self.rule!r} needs experimental.solver = 'sweep', "
                               "'jacobi' or 'binned' (the default, 'ordinates', takes rule = 'moment' only: its "

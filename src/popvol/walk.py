@@ -29,6 +29,7 @@ from .kernels import cells as KC
 from .kernels import ordinates as KO
 from .kernels import ordinates18 as KO18
 from .kernels import propagation as K
+from .kernels import sampling as KS
 from .results import Budget, WalkResult
 
 SPLIT_TABLE_SIZE = 4097
@@ -251,23 +252,28 @@ def direction_split(directions: np.ndarray, g: np.ndarray, n_ordinates: int) -> 
         return i0, x - i0
     s0, fs = texels(d[rows, a1])
     t0, ft = texels(d[rows, a2])
-    corners = [(s0 + i, t0 + j, (fs if i else 1.0 - fs) * (ft if j else 1.0 - ft)) for i in (0, 1) for j in (0, 1)]
+    texel = (face * SPLIT_TEXELS + s0) * SPLIT_TEXELS + t0           # the corner (s0, t0) of each
+    corners = [(texel + i * SPLIT_TEXELS + j, (fs if i else 1.0 - fs) * (ft if j else 1.0 - ft))
+               for i in (0, 1) for j in (0, 1)]
     x = (np.clip(np.broadcast_to(np.asarray(g, np.float64), (m,)), -1.0, 1.0) + 1.0) / SPLIT_G_STEP
+    x = np.where(np.abs(x - np.round(x)) < 1e-6, np.round(x), x)     # on a tabulated anisotropy: one table
     n_g = int(round(2.0 / SPLIT_G_STEP))
     lo = np.minimum(x.astype(np.int64), n_g - 1)
-    w = (x - lo)[:, None]
-    share = np.zeros((m, n_ordinates), np.float32)
-    moment = np.zeros((m, n_ordinates), np.float32)
-    for b in np.unique(np.concatenate([lo, lo + 1])):
-        weight = np.where(lo == b, 1.0 - w[:, 0], 0.0) + np.where(lo + 1 == b, w[:, 0], 0.0)
-        at = np.flatnonzero(weight > 0)
-        if at.size == 0:
-            continue
-        table = _direction_split(n_ordinates, round(-1.0 + b * SPLIT_G_STEP, 6))
-        part = sum(wc[at, None, None] * table[face[at], s[at], t[at]] for s, t, wc in corners)   # (k, 2, n)
-        share[at] += (weight[at, None] * part[:, 0]).astype(np.float32)
-        moment[at] += (weight[at, None] * part[:, 1]).astype(np.float32)
-    return share, moment
+    w = x - lo
+    bins = np.unique(np.concatenate([lo, (lo + 1)[w > 0]]))
+    texels_per_table = 6 * SPLIT_TEXELS * SPLIT_TEXELS
+    table = np.concatenate([_direction_split(n_ordinates, round(-1.0 + b * SPLIT_G_STEP, 6)).reshape(
+        texels_per_table, 2 * n_ordinates) for b in bins])
+    rows = np.empty((m, 8), np.int64)
+    weights = np.empty((m, 8), np.float32)
+    for q, (upper, wg) in enumerate(((0, 1.0 - w), (1, w))):
+        at_bin = np.searchsorted(bins, np.minimum(lo + upper, bins[-1])) * texels_per_table
+        for c, (index, wc) in enumerate(corners):
+            rows[:, 4 * q + c] = at_bin + index
+            weights[:, 4 * q + c] = wg * wc
+    out = np.empty((m, 2 * n_ordinates), np.float32)
+    KS.blend_rows(table, rows, weights, out)
+    return out[:, :n_ordinates], out[:, n_ordinates:]
 
 
 def anisotropy_bins(n: int = ANISOTROPY_BINS) -> np.ndarray:

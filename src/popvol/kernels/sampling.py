@@ -272,3 +272,24 @@ def densest_near_blocks(density, block, out):
         for p in range(by):
             for q in range(bz):
                 out[b, p, q] = acc[p, q]
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def blend_rows(table, rows, weights, out):
+    """``out[c] = sum_q weights[c, q] table[rows[c, q]]`` for every c: a weighted mix of rows of
+    ``table`` (float32 (n, w)), the rows int64 (m, k) and their weights float32 (m, k) per c,
+    into ``out`` float32 (m, w); a weight of 0 skips its row. (walk.direction_split: each
+    lobe's split, bilinear between a cube map's texels and linear between two anisotropies.)
+    NumPy twin: tests/twins.py (blend_rows)."""
+    m, k = rows.shape
+    w = table.shape[1]
+    for c in nb.prange(m):
+        for x in range(w):
+            out[c, x] = 0.0
+        for q in range(k):
+            wq = weights[c, q]
+            if wq == 0.0:
+                continue
+            r = rows[c, q]
+            for x in range(w):
+                out[c, x] += wq * table[r, x]
