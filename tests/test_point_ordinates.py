@@ -102,15 +102,16 @@ def test_the_first_scattering_holds_what_the_rays_lose_and_the_budget_balances(a
     assert np.array_equal(result.phi, result.direct) and np.array_equal(result.phia, result.direct)
 
 
-def test_a_distant_point_light_is_a_sun_with_ordinates():
+@pytest.mark.parametrize("direction", [[0.0, 0.0, -1.0], [0.3, -0.8, -0.52]], ids=["axis", "oblique"])
+def test_a_distant_point_light_is_a_sun_with_ordinates(direction):
     """A point light of intensity E D^2 at distance D lights the medium as a sun of irradiance E
-    (to the beam's divergence): its first scattering walked on the box (along the world's
-    axes) against the sun's light walked from its face, the sun along the box's axis so the
-    two lattices are one. Measured (gathered last bounce) x1.021 overall, pixels 1.3 % apart
-    in the median and 3 % at most: the two place the first scattering differently (the sun's
+    (to the beam's divergence): its first scattering walked on its box (turned toward the
+    medium, as the sun's domain is turned along the sun) against the sun's light walked from its
+    face. Measured (gathered last bounce) x1.021 and x1.037, pixels 1.3 % and 2.0 % apart in the
+    median and 3 % and 6 % at most: the two place the first scattering differently (the sun's
     walk sends what scatters in the sender's half of a step on from the sender)."""
     med = blob(n=16, tau=3.0, albedo=0.9)
-    d = np.array([0.0, 0.0, -1.0])
+    d = np.array(direction) / np.linalg.norm(direction)
     D = 2000.0
     cam = Camera([0.5, 0.62, 2.4], [0.5, 0.5, 0.5], [0, 1, 0], 32.0, 24, 16)
     images = []
@@ -122,8 +123,34 @@ def test_a_distant_point_light_is_a_sun_with_ordinates():
     lit = sun[..., 0] > 0.05 * sun[..., 0].max()
     assert lit.sum() > 50
     rel = point[lit] / sun[lit] - 1
-    assert point[lit].sum() / sun[lit].sum() == pytest.approx(1.0, abs=0.035)
-    assert np.abs(np.median(rel)) < 0.025 and np.abs(rel).max() < 0.05, (np.median(rel), np.abs(rel).max())
+    assert point[lit].sum() / sun[lit].sum() == pytest.approx(1.0, abs=0.05)
+    assert np.abs(np.median(rel)) < 0.03 and np.abs(rel).max() < 0.08, (np.median(rel), np.abs(rel).max())
+
+
+def test_the_box_of_a_light_outside_the_medium_turns_toward_it():
+    """The cumulus field (g = 0.85), a distant point light along the cube's diagonal against a
+    sun: with the box along the world's axes the light crossed the lattice 35-55 degrees off its
+    ordinates and the field came out x1.33 (docs/METHOD.md, "A point light's ordinates"); turned
+    toward the medium, x0.943 here (64 cells, 48x32; at 32 cells x0.83: the two place the first
+    scattering in the field's optically thick cells differently)."""
+    import dataclasses
+    from pathlib import Path
+    import popvol
+    scene = popvol.load_scene(Path(popvol.__file__).parent / "bench_scenes" / "field_point.toml", resolution=64,
+                              point_walk="ordinates", width=48, height=32)
+    d = -np.ones(3) / np.sqrt(3.0)
+    centre = 0.5 * (scene.medium.bounds[0] + scene.medium.bounds[1])
+    images = []
+    for light in (PointLight(centre - 2000.0 * d, np.full(3, 2000.0 ** 2)), DirectionalLight(d, np.ones(3))):
+        sc = dataclasses.replace(scene, lights=[light])
+        sol = solve(sc)
+        if isinstance(light, PointLight):
+            assert not sol.domains[0].domain.full
+            assert np.allclose(sol.domains[0].domain.grid.frame[0], d, atol=0.01)
+        images.append(render(sc, sol).astype(np.float64))
+    point, sun = images
+    lit = sun[..., 0] > 0.02 * sun[..., 0].max()
+    assert point[lit].sum() / sun[lit].sum() == pytest.approx(1.0, abs=0.08)
 
 
 def test_a_source_needs_the_ordinates_and_cells_not_skipped():

@@ -135,9 +135,9 @@ KNOBS: tuple[Knob, ...] = (
     Knob("point_walk", "sweep", ("sweep", "ordinates"), "How a point light's scattered light is walked.",
          "Sweeps of one lobe per cell in its spherical domain, with the diffusion stage of "
          "`isotropic`; or, with `solver = \"ordinates\"`, its first scattering as the source of an "
-         "ordinates walk on a box along the medium's axes, every order walked (docs/METHOD.md, "
+         "ordinates walk on a box over the medium, every order walked (docs/METHOD.md, "
          "\"A point light's ordinates\"): closer to Mitsuba where g is small, farther where it is "
-         "large (the lattice is not aligned with the light).", experimental=True),
+         "large where the light is inside the medium (the lattice cannot be aligned with it).", experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
          "(the paper's rule, with a one-lobe `solver` only).", experimental=True),

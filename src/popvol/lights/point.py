@@ -79,12 +79,15 @@ class PointLight(Light):
 
     def domain(self, medium, method) -> "SphericalDomain":
         """Its spherical domain; with the ordinates' walks and ``method.point_walk =
-        "ordinates"``, with a box over the medium (along
-        the world's axes, ``method.resolution`` cells along its longest side, cropped as a
-        sun's) for its scattered light."""
+        "ordinates"``, with a box over the medium for its scattered light
+        (``method.resolution`` cells along its longest side, cropped as a sun's): turned, as a
+        sun's domain, toward the medium (along the cone's axis) where the light is outside the
+        medium's box, so that its light crosses the lattice as nearly along an ordinate as a
+        cone allows; along the world's axes (BOX_AXIS) where the domain is the whole sphere."""
         sphere = spherical_domain(medium, self.position, method.resolution)
         if method.solver == "ordinates" and method.point_walk == "ordinates":
-            sphere.grid = directional_domain(medium, BOX_AXIS, method.resolution)
+            axis = BOX_AXIS if sphere.full else sphere.frame[0]
+            sphere.grid = directional_domain(medium, axis, method.resolution)
         return sphere
 
     def table(self) -> dict:
@@ -506,8 +509,8 @@ def mean_inverse_square(centres: np.ndarray, h: float) -> np.ndarray:
     return out
 
 
-#: the axis of the box a point light's scattered light is walked on (domains.light_frame: rows z,
-#: x, y, so its cells are the medium's axes)
+#: the axis of the box a point light's scattered light is walked on where its domain is the whole
+#: sphere (domains.light_frame: rows z, x, y, so its cells are the medium's axes)
 BOX_AXIS = np.array([0.0, 0.0, 1.0])
 #: A cone wider than this (half-angle) becomes a full sphere: its corners would be too distorted.
 MAX_CONE_HALF_ANGLE = np.radians(60.0)
