@@ -192,3 +192,21 @@ def test_point_walk_ordinates_needs_the_ordinates_solver():
         scene_from_dict({"medium": {"type": "procedural", "resolution": 8},
                          "lights": [{"type": "point", "position": [0, 0, 0]}],
                          "experimental": {"point_walk": "ordinates", "solver": "sweep"}})
+
+
+def test_a_medium_too_thin_to_change_a_packet_places_no_source_in_skipped_cells():
+    """Voxels whose float32 factors round to 1 (sigma h ~ 1e-9) are empty to the walk, which
+    skips the cells around them; the first scattering goes only to cells it visits
+    (walk.never_skipped). Found on the WDAS cloud lit by a lamp: 'a source packet in a skipped
+    cell'."""
+    med = blob(n=16, tau=4.0, albedo=0.9)
+    rho = med.density.copy()
+    rho[:, :3, :] = 1e-12                         # a faint floor, below float32's resolution
+    rho[:, 3:6, :] = 0.0
+    from popvol.medium import Medium
+    faint = Medium(rho, med.voxel_size, med.origin, scale=med.scale, albedo=med.albedo, g=med.g, source="faint")
+    cam = Camera([0.5, 0.62, 2.4], [0.5, 0.5, 0.5], [0, 1, 0], 32.0, 24, 16)
+    scene = Scene(faint, [PointLight([1.6, 1.4, 0.5], [1.0, 1.0, 1.0])], cam, np.zeros(3),
+                  Method(resolution=24, point_walk="ordinates"))
+    image = render(scene, solve(scene), jitter=False)
+    assert np.isfinite(image).all() and image.max() > 0

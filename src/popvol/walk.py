@@ -476,30 +476,16 @@ def skipped_cells(Th, Dh, Sh, read) -> np.ndarray:
     """bool (the domain's shape): the cells the six-ordinate walk crosses without visiting them
     (docs/METHOD.md, "Skipping empty space"): empty (Th = Dh = Sh = 1: a packet crosses it
     unchanged), their fields not ``read`` (bool, the domain's shape), and none of their 26
-    neighbours holding medium, so that a run of them ends at an empty cell."""
-    empty = (Th == 1) & (Dh == 1) & (Sh == 1)
-    return empty & ~read & ~grow(~empty)
+    neighbours holding medium, so that a run of them ends at an empty cell: the cells neither
+    read nor :func:`never_skipped`."""
+    return ~read & ~never_skipped(Th, Dh, Sh)
 
 
-def inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally) -> tuple[float, float]:
-    """The light injected at the face k = 0 of an ordinates walk (:func:`walk_ordinates`,
-    :func:`walk_ordinates18`) into ordinate +d (column 0 of W, Wa, one row per cell not skipped:
-    ``cell``): it crosses half a cell to the first centres (a0 decayed by Dh there), in slice 0,
-    or, where a column starts with skipped cells, in the cell after them; a column skipped
-    throughout transmits it (``tally``). Marks the rows it enters ``pending``. Returns (power
-    the half step into slice 0 absorbed, power injected)."""
-    kept = cell >= 0
-    first = np.argmax(kept, axis=0)                    # the first cell of each column along d kept
-    ahead = kept.any(axis=0)
-    I, J = np.nonzero(ahead)
-    k1 = first[ahead]
-    c = cell[k1, I, J]
-    W[c, 0] = injection[ahead] * Th[k1, I, J]
-    Wa[c, 0] = W[c, 0] * np.float32(a0) * Dh[k1, I, J]
-    pending[k1, I] = 1
-    tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
-    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
-    return absorbed, float(np.sum(injection, dtype=np.float64))
+def never_skipped(Th, Dh, Sh) -> np.ndarray:
+    """bool (the domain's shape): the cells the ordinates' walks visit whatever is read: those
+    a packet does not cross unchanged (a factor below 1: medium, however thin) and their 26
+    neighbours (:func:`skipped_cells`). A source of packets (:func:`place`) may use only these."""
+    return grow(~((Th == 1) & (Dh == 1) & (Sh == 1)))
 
 
 def place(W, Wa, cell, pending, source) -> tuple[float, float]:

@@ -24,15 +24,15 @@ import numpy as np
 
 from .. import check
 from ..diffusion import coefficients
-from ..domains import (DirectionalDomain, check_memory, directional_domain, grow, light_frame, optics,
+from ..domains import (DirectionalDomain, check_memory, directional_domain, light_frame, optics,
                        resample_medium)
 from ..errors import PopvolError
 from ..kernels import propagation as KP
 from ..kernels import spherical as KS
 from ..medium import Medium
 from ..results import Budget, WalkResult
-from ..walk import (default_max_iterations, direction_split, handover_arrays, medium_factors, scatter_factor,
-                    split_table32, sweep_until_converged, walk_box)
+from ..walk import (default_max_iterations, direction_split, handover_arrays, medium_factors, never_skipped,
+                    scatter_factor, split_table32, sweep_until_converged, walk_box)
 from .base import HandOver, Light
 
 
@@ -255,11 +255,12 @@ class SphericalDomain:
             out += w * field[k, i, j]
         return out
 
-    def first_scattering(self, direct: np.ndarray, sigma_t: np.ndarray, sigma_s: np.ndarray, grid_optics,
-                         n_ordinates: int):
+    def first_scattering(self, direct: np.ndarray, sigma_t: np.ndarray, sigma_s: np.ndarray, grid_g: np.ndarray,
+                         cells: np.ndarray, n_ordinates: int):
         """The light's first scattering, per unit intensity, as packets pending at the centres
-        of the ``grid``'s cells with medium in or beside them, split among the ordinates
-        (walk.place's source: index, power, moment).
+        of the ``grid``'s ``cells`` (bool, its shape: walk.never_skipped, the cells with medium
+        in or beside them), split among the ordinates (walk.place's source: index, power,
+        moment); ``grid_g`` (float32, its shape) the phase's anisotropy there.
 
         Each cell of this domain scatters ``(sigma_s / sigma_t) (E_in - E_out) Omega``, E =
         exp(-tau) where its ray enters and leaves it (``direct`` times r^2 at its centre, times
@@ -272,14 +273,14 @@ class SphericalDomain:
         HG_g about the light's direction n, is split as the walks split a lobe
         (walk.direction_split)."""
         grid = self.grid
-        _, grid_s, g = grid_optics
+        g = grid_g
         lo = self.r0 + np.arange(self.shape[0]) * self.dr
         hi = lo + self.dr
         r = self.radii
         albedo = np.where(sigma_t > 0.0, sigma_s / np.maximum(sigma_t, 1e-30), 0.0)
         loss = 2.0 * direct * np.sinh(0.5 * sigma_t * self.dr)        # (E_in - E_out) / r^2
         density = albedo * loss * (3.0 * r ** 4 / (hi ** 3 - lo ** 3))[:, None, None]
-        index = np.nonzero(grow(grid_s > 0.0))        # never skipped (walk.skipped_cells)
+        index = np.nonzero(cells)
         x = grid.index_to_world(np.stack(index, axis=-1).astype(np.float64))
         d = x - self.centre
         dist = np.linalg.norm(d, axis=1)
@@ -410,12 +411,13 @@ class SphericalDomain:
         sigma_t, sigma_s, _, grid_optics = optics
         t0 = time.perf_counter()
         direct = self.direct_fluence(sigma_t)
-        source = self.first_scattering(direct, sigma_t, sigma_s, grid_optics, method.ordinates)
         grid_t, grid_s, grid_g = grid_optics
         Th, Dh = medium_factors(grid_t, grid_s, grid_g, self.grid.h, method.decay)
+        Sh = scatter_factor(grid_s, self.grid.h)
+        source = self.first_scattering(direct, sigma_t, sigma_s, grid_g, never_skipped(Th, Dh, Sh), method.ordinates)
         walk = walk_box(Th, Dh, None, 1.0, self.grid.h, method.rule, "ordinates", method.tolerance,
-                        method.max_iterations, progress=progress, scatter=scatter_factor(grid_s, self.grid.h),
-                        read=read, ordinates=method.ordinates, source=source)
+                        method.max_iterations, progress=progress, scatter=Sh, read=read, ordinates=method.ordinates,
+                        source=source)
         return WalkResult(direct.copy(), direct.copy(), walk.budget, walk.iterations, walk.cell_updates,
                           walk.residual, walk.converged, time.perf_counter() - t0, "ordinates", direct=direct,
                           cells_sent=walk.cells_sent, scattered=walk)
