@@ -235,8 +235,10 @@ def direction_split(directions: np.ndarray, g: np.ndarray, n_ordinates: int) -> 
     Looked up in :func:`_direction_split`'s cube map, bilinear between the texels of a
     direction's face, and linear in g (float (m,), clipped to [-1, 1]) between the
     anisotropies tabulated SPLIT_G_STEP apart."""
-    d = np.asarray(directions, np.float64)
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
     m = len(d)
+    if m == 0:
+        return np.zeros((0, n_ordinates), np.float32), np.zeros((0, n_ordinates), np.float32)
     absd = np.abs(d)
     axis = np.argmax(absd, axis=1)
     rows = np.arange(m)
@@ -486,6 +488,27 @@ def never_skipped(Th, Dh, Sh) -> np.ndarray:
     a packet does not cross unchanged (a factor below 1: medium, however thin) and their 26
     neighbours (:func:`skipped_cells`). A source of packets (:func:`place`) may use only these."""
     return grow(~((Th == 1) & (Dh == 1) & (Sh == 1)))
+
+
+def inject(W, Wa, Th, Dh, injection, a0, cell, pending, tally) -> tuple[float, float]:
+    """The light injected at the face k = 0 of an ordinates walk (:func:`walk_ordinates`,
+    :func:`walk_ordinates18`) into ordinate +d (column 0 of W, Wa, one row per cell not skipped:
+    ``cell``): it crosses half a cell to the first centres (a0 decayed by Dh there), in slice 0,
+    or, where a column starts with skipped cells, in the cell after them; a column skipped
+    throughout transmits it (``tally``). Marks the rows it enters ``pending``. Returns (power
+    the half step into slice 0 absorbed, power injected)."""
+    kept = cell >= 0
+    first = np.argmax(kept, axis=0)                    # the first cell of each column along d kept
+    ahead = kept.any(axis=0)
+    I, J = np.nonzero(ahead)
+    k1 = first[ahead]
+    c = cell[k1, I, J]
+    W[c, 0] = injection[ahead] * Th[k1, I, J]
+    Wa[c, 0] = W[c, 0] * np.float32(a0) * Dh[k1, I, J]
+    pending[k1, I] = 1
+    tally[K.TRANSMITTED] += float(np.sum(injection[~ahead], dtype=np.float64))
+    absorbed = float(np.sum(injection * (1.0 - Th[0]), dtype=np.float64))
+    return absorbed, float(np.sum(injection, dtype=np.float64))
 
 
 def place(W, Wa, cell, pending, source) -> tuple[float, float]:
