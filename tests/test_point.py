@@ -32,11 +32,12 @@ def blob(n=16, tau=0.0, albedo=1.0, g=0.6):
 
 @pytest.mark.parametrize("where", POSITIONS)
 def test_vacuum_fluence_is_the_inverse_square_law(where):
-    """In vacuum every cell centre gets phi = I / r^2 (to float32 rounding), all the emitted
+    """The sweeps (point_walk = "sweep": a light outside the medium's box is otherwise walked by
+    the ordinates, tests/test_point_ordinates.py). In vacuum every cell centre gets phi = I / r^2 (to float32 rounding), all the emitted
     power (4 pi I on a full sphere, I times the cone's solid angle otherwise) leaves through
     the outer sphere, and the r^2-weighted field the renderer looks up is I everywhere."""
     med = blob(tau=0.0)
-    ds = solve_light(med, PointLight(POSITIONS[where], 1.0), Method(resolution=20, isotropic="walk"))
+    ds = solve_light(med, PointLight(POSITIONS[where], 1.0), Method(resolution=20, isotropic="walk", point_walk="sweep"))
     dom, r = ds.domain, ds.result
     assert dom.full == (where != "far")
     # up to the shells beyond the medium's box (exit_shells), where the light has left
@@ -239,12 +240,13 @@ def test_energy_budget_balances_and_a_white_medium_absorbs_nothing(where, isotro
 
 @pytest.mark.parametrize("where", [[0.0, 0.3, 0.0], [2.5, 0.9, 0.4]], ids=["inside", "outside"])
 def test_budget_balances_with_empty_cells_and_the_diffusion_stage(where):
-    """The procedural cumulus (empty cells around and inside its box): the power handed to the
+    """The procedural cumulus (empty cells around and inside its box), lit by the sweeps: the power handed to the
     diffusion grid is all absorbed, leaked or tallied as not propagated (diffusion_leak), to
     float rounding."""
     scene = scene_from_dict({"medium": {"type": "procedural", "resolution": 24},
                              "lights": [{"type": "point", "position": where, "intensity": 1.0}],
-                             "method": {"resolution": 24, "diffusion_resolution": 16}})
+                             "method": {"resolution": 24, "diffusion_resolution": 16},
+                             "experimental": {"point_walk": "sweep"}})
     ds = solve_light(scene.medium, scene.lights[0], scene.method)
     b = ds.result.budget
     assert ds.result.diffusion.source > 0.01 * b.injected

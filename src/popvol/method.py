@@ -123,8 +123,7 @@ KNOBS: tuple[Knob, ...] = (
          "Mitsuba: docs/ACCURACY.md), the Jacobi wavefront (reference semantics: each iteration "
          "moves every packet one cell), or the Jacobi wavefront with each cell's light kept in 17 "
          "fixed anisotropy bins instead of one merged lobe (linear in the light, so the answer does "
-         "not depend on the schedule; 5-40x slower). Point lights sweep one lobe unless "
-         "`point_walk = \"ordinates\"`.",
+         "not depend on the schedule; 5-40x slower). Point lights: see `point_walk`.",
          experimental=True),
     Knob("ordinates", 18, (6, 18), "Directions of `solver = \"ordinates\"`: 6 or 18.",
          "18: one lobe per face and per edge of the lattice, so that light scattered 45 degrees off "
@@ -132,12 +131,14 @@ KNOBS: tuple[Knob, ...] = (
          "(+-d, +-u, +-v), light scattered 45-135 degrees goes exactly sideways: about half the "
          "time to walk, further from Mitsuba on sunlit clouds (docs/ACCURACY.md). The other "
          "solvers ignore it.", experimental=True, allowed_text="6 or 18"),
-    Knob("point_walk", "sweep", ("sweep", "ordinates"), "How a point light's scattered light is walked.",
-         "Sweeps of one lobe per cell in its spherical domain, with the diffusion stage of "
-         "`isotropic`; or, with `solver = \"ordinates\"`, its first scattering as the source of an "
-         "ordinates walk on a box over the medium, every order walked (docs/METHOD.md, "
-         "\"A point light's ordinates\"): closer to Mitsuba where g is small, farther where it is "
-         "large where the light is inside the medium (the lattice cannot be aligned with it).", experimental=True),
+    Knob("point_walk", "auto", ("auto", "sweep", "ordinates"), "How a point light's scattered light is walked.",
+         "`\"sweep\"`: sweeps of one lobe per cell in its spherical domain, with the diffusion stage "
+         "of `isotropic`; `\"ordinates\"` (with `solver = \"ordinates\"`): its first scattering as "
+         "the source of an ordinates walk on a box over the medium, every order walked, the box "
+         "turned toward the medium as a sun's domain where the light is outside it (docs/METHOD.md, "
+         "\"A point light's ordinates\"); `\"auto\"`: the ordinates for a light outside the "
+         "medium's box (its spherical domain a cone), the sweeps for one inside or near it, where "
+         "the box's lattice cannot be aligned with its light.", experimental=True),
     Knob("rule", "moment", ("moment", "paper"), "Anisotropy of each outgoing part.",
          "The mean cosine of its slice of the lobe (conserves the first moment) or the cell's own "
          "(the paper's rule, with a one-lobe `solver` only).", experimental=True),

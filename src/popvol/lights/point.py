@@ -1,10 +1,12 @@
 """A point light and its domain: cells in spherical coordinates about the light, the principal
 ordinate radial (docs/METHOD.md, "Walk").
 
-With experimental.point_walk = "ordinates" (and solver = "ordinates") the spherical domain
-holds the unscattered light only, r^2 phi_dir = exp(-tau) along each radius, and the light's
-first scattering is the source of an ordinates walk on a world-aligned box over the medium
-(:meth:`SphericalDomain.first_scattering`; docs/METHOD.md, "A point light's ordinates"), whose
+For a light outside the medium's box (experimental.point_walk = "auto", the default; for every
+light with "ordinates"; both with solver = "ordinates") the spherical domain holds the
+unscattered light only, r^2 phi_dir = exp(-tau) along each radius, and the light's first
+scattering is the source of an ordinates walk on a box over the medium, turned toward the
+medium as a sun's domain (along the world's axes for a light inside it:
+:meth:`SphericalDomain.first_scattering`; docs/METHOD.md, "A point light's ordinates"), whose
 fields the renderer reads on the medium's grid, as a sun's scattered light.
 
 Otherwise the walk sweeps along r (kernels/spherical.py) from unit intensity at the light. The
@@ -79,13 +81,15 @@ class PointLight(Light):
 
     def domain(self, medium, method) -> "SphericalDomain":
         """Its spherical domain; with the ordinates' walks and ``method.point_walk =
-        "ordinates"``, with a box over the medium for its scattered light
+        "ordinates"`` (or "auto" where the light is outside the medium's box, its domain a
+        cone), with a box over the medium for its scattered light
         (``method.resolution`` cells along its longest side, cropped as a sun's): turned, as a
         sun's domain, toward the medium (along the cone's axis) where the light is outside the
         medium's box, so that its light crosses the lattice as nearly along an ordinate as a
         cone allows; along the world's axes (BOX_AXIS) where the domain is the whole sphere."""
         sphere = spherical_domain(medium, self.position, method.resolution)
-        if method.solver == "ordinates" and method.point_walk == "ordinates":
+        walk = method.point_walk
+        if method.solver == "ordinates" and (walk == "ordinates" or (walk == "auto" and not sphere.full)):
             axis = BOX_AXIS if sphere.full else sphere.frame[0]
             sphere.grid = directional_domain(medium, axis, method.resolution)
         return sphere
