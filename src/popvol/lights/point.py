@@ -227,16 +227,22 @@ class SphericalDomain:
         without one: the sweeps visit every cell (the renderer reads their fields here)."""
         return None if self.grid is None else self.grid.cells_read(medium, seen)
 
-    def lookup(self, field: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """float64 (m,): ``field`` (the domain's shape) at world points x (m, 3), trilinear in
-        the continuous cell index, clamped in r and theta, periodic in phi on a full sphere (the
-        renderer's kernels.render.point_lookup, in NumPy)."""
+    def spherical(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(r, theta, phi), float64 (m,) each, of world points x (m, 3) (kernels.spherical's
+        spherical_index, in NumPy; phi in [0, 2 pi) on a full sphere)."""
         local = (np.asarray(x, np.float64) - self.centre) @ self.frame.T
         r = np.linalg.norm(local, axis=1)
         theta = np.arccos(np.clip(local[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
         phi = np.arctan2(local[:, 1], local[:, 0])
         if self.full:
             phi = np.where(phi < 0.0, phi + 2.0 * np.pi, phi)
+        return r, theta, phi
+
+    def lookup(self, field: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """float64 (m,): ``field`` (the domain's shape) at world points x (m, 3), trilinear in
+        the continuous cell index, clamped in r and theta, periodic in phi on a full sphere (the
+        renderer's kernels.render.point_lookup, in NumPy)."""
+        r, theta, phi = self.spherical(x)
         q = ((r - self.r0) / self.dr - 0.5, (theta - self.theta0) / self.dtheta - 0.5,
              (phi - self.phi0) / self.dphi - 0.5)
         corners = []
@@ -250,10 +256,10 @@ class SphericalDomain:
                 qa = np.clip(qa, 0.0, n - 1.0)
                 i0 = np.minimum(qa.astype(np.int64), max(n - 2, 0))
                 corners.append((i0, np.minimum(i0 + 1, n - 1), qa - i0))
-        out = np.zeros(len(local))
+        out = np.zeros(len(r))
         for a in range(8):
             k, i, j = (c[1] if a & bit else c[0] for c, bit in zip(corners, (4, 2, 1)))
-            w = np.ones(len(local))
+            w = np.ones(len(r))
             for c, bit in zip(corners, (4, 2, 1)):
                 w *= c[2] if a & bit else 1.0 - c[2]
             out += w * field[k, i, j]
@@ -316,12 +322,7 @@ class SphericalDomain:
         def cell_at(t, w):
             """The cell (k, i, j) holding the points at distance t along the rays w (in the
             world), and how far into its shell each lies."""
-            local = (t[:, None] * w) @ self.frame.T
-            r = np.linalg.norm(local, axis=1)
-            theta = np.arccos(np.clip(local[:, 2] / np.maximum(r, 1e-300), -1.0, 1.0))
-            phi = np.arctan2(local[:, 1], local[:, 0])
-            if self.full:
-                phi = np.where(phi < 0.0, phi + 2.0 * np.pi, phi)
+            r, theta, phi = self.spherical(self.centre + t[:, None] * w)
             idx = [np.clip(np.floor((v - v0) / dv).astype(np.int64), 0, n - 1)
                    for v, v0, dv, n in ((r, self.r0, self.dr, self.shape[0]),
                                         (theta, self.theta0, self.dtheta, self.shape[1]),
