@@ -7,11 +7,11 @@ from scipy import integrate
 
 from popvol.camera import Camera
 from popvol.lights import DirectionalLight, PointLight
-from popvol.lights.point import mean_inverse_square
+from popvol.lights.point import NEAR_DIRECTIONS, cube_chords
 from popvol.pipeline import solve, solve_light
 from popvol.renderer import render
 from popvol.scene import Method, Scene
-from popvol.walk import ORDINATES18, direction_split, ordinate18_table, walk_box
+from popvol.walk import ORDINATES18, direction_split, fibonacci_directions, ordinate18_table, walk_box
 from test_point import blob
 import twins
 from popvol.kernels.sampling import blend_rows
@@ -62,10 +62,22 @@ def test_a_split_lobe_keeps_its_power_and_turns_with_its_direction():
         assert (np.sign(along[np.abs(g) > 0.2]) == np.sign(g[np.abs(g) > 0.2])).all()
 
 
-def test_mean_inverse_square_of_a_cube_is_the_integral_of_its_chords():
-    """int dV / r^2 over a unit cube centred on the light is 3 int int dx dy / (x^2 + y^2 + 1/4)
-    over a face (dV = r^2 dr dOmega, six faces); off the light, the mean of 1 / r^2 over 96^3
-    points of the cube."""
+def mean_inverse_square(centres, h):
+    """1 / r^2 averaged over cubes of side h at ``centres`` (relative to the light) from their
+    chords along the rays from it, ``int_cube dV / r^2 = int dOmega l(Omega)`` (dV = r^2 dr
+    dOmega), as scattered_in_cubes integrates over them."""
+    omega = fibonacci_directions(NEAR_DIRECTIONS)
+    out = []
+    for centre in np.asarray(centres, np.float64):
+        t_in, t_out = cube_chords(centre, h, omega)
+        out.append(4.0 * np.pi * np.maximum(t_out - t_in, 0.0).mean() / h ** 3)
+    return np.array(out)
+
+
+def test_the_chords_of_a_cube_integrate_its_mean_inverse_square():
+    """lights.point.cube_chords over the rays from the light: int dV / r^2 over a unit cube
+    centred on it is 3 int int dx dy / (x^2 + y^2 + 1/4) over a face (six faces); off the light,
+    the mean of 1 / r^2 over 96^3 points of the cube."""
     exact, _ = integrate.dblquad(lambda y, x: 3.0 / (x * x + y * y + 0.25), -0.5, 0.5, -0.5, 0.5)
     s = (np.arange(96) + 0.5) / 96 - 0.5
     points = np.stack(np.meshgrid(s, s, s, indexing="ij"), axis=-1).reshape(-1, 3)

@@ -182,6 +182,16 @@ SPLIT_QUADRATURE = 8192
 SPLIT_G_STEP = 0.05
 
 
+def fibonacci_directions(n: int) -> np.ndarray:
+    """float64 (n, 3): unit directions of a Fibonacci lattice, each the centre of an equal
+    solid angle 4 pi / n (the quadratures of :func:`_direction_split` and of lights.point)."""
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    ring = np.sqrt(1.0 - z * z)
+    turn = np.pi * (1.0 + np.sqrt(5.0)) * i
+    return np.stack([ring * np.cos(turn), ring * np.sin(turn), z], axis=-1)
+
+
 def _cube_axes(face: int) -> tuple[int, float, int, int]:
     """A cube map's face (2 axis + (the component is negative)): (axis, its sign, the two other
     axes in increasing order)."""
@@ -201,11 +211,7 @@ def _direction_split(n_ordinates: int, g: float) -> np.ndarray:
     ordinate. By quadrature over SPLIT_QUADRATURE directions of a Fibonacci lattice (equal
     areas); the shares of a lobe sum to 1."""
     axes = ORDINATES18[:n_ordinates] / np.linalg.norm(ORDINATES18[:n_ordinates], axis=1)[:, None]
-    i = np.arange(SPLIT_QUADRATURE) + 0.5
-    z = 1.0 - 2.0 * i / SPLIT_QUADRATURE
-    ring = np.sqrt(1.0 - z * z)
-    turn = np.pi * (1.0 + np.sqrt(5.0)) * i
-    omega = np.stack([ring * np.cos(turn), ring * np.sin(turn), z], axis=-1)
+    omega = fibonacci_directions(SPLIT_QUADRATURE)
     dots = omega @ axes.T
     part = np.argmax(dots, axis=1)
     member = np.zeros((SPLIT_QUADRATURE, n_ordinates))

@@ -33,8 +33,8 @@ from ..kernels import propagation as KP
 from ..kernels import spherical as KS
 from ..medium import Medium
 from ..results import Budget, WalkResult
-from ..walk import (default_max_iterations, direction_split, handover_arrays, medium_factors, never_skipped,
-                    scatter_factor, split_table32, sweep_until_converged, walk_box)
+from ..walk import (default_max_iterations, direction_split, fibonacci_directions, handover_arrays,
+                    medium_factors, never_skipped, scatter_factor, split_table32, sweep_until_converged, walk_box)
 from .base import HandOver, Light
 
 
@@ -478,16 +478,6 @@ NEAR_CELLS = 2.0
 NEAR_DIRECTIONS = 4096
 
 
-def fibonacci_directions(n: int) -> np.ndarray:
-    """float64 (n, 3): unit directions of a Fibonacci lattice, each the centre of an equal
-    solid angle 4 pi / n."""
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    ring = np.sqrt(1.0 - z * z)
-    turn = np.pi * (1.0 + np.sqrt(5.0)) * i
-    return np.stack([ring * np.cos(turn), ring * np.sin(turn), z], axis=-1)
-
-
 def cube_chords(centre: np.ndarray, h: float, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Where the rays from the origin along ``omega`` (n, 3) enter and leave the axis-aligned
     cube of side h at ``centre`` (3,): float64 (n,) each, t_in >= 0 (0 where the cube holds the
@@ -499,21 +489,6 @@ def cube_chords(centre: np.ndarray, h: float, omega: np.ndarray) -> tuple[np.nda
         lo = np.nanmax(np.minimum(t1, t2), axis=1)
         hi = np.nanmin(np.maximum(t1, t2), axis=1)
     return np.maximum(lo, 0.0), hi
-
-
-def mean_inverse_square(centres: np.ndarray, h: float) -> np.ndarray:
-    """float64 (m,): 1 / r^2 averaged over cubes of side h (axis-aligned, ``centres`` (m, 3)
-    relative to the origin, the light), exactly as what a ray from the origin crosses:
-    ``int_cube dV / r^2 = int dOmega l(Omega)`` (dV = r^2 dr dOmega), ``l`` the length of the
-    cube's chord along the ray from the origin (:func:`cube_chords`), by quadrature over
-    NEAR_DIRECTIONS directions (:func:`fibonacci_directions`). Finite and smooth where a cube
-    holds the origin, where 1 / r^2 at points of it is not."""
-    omega = fibonacci_directions(NEAR_DIRECTIONS)
-    out = np.empty(len(centres))
-    for c, centre in enumerate(np.asarray(centres, np.float64)):
-        t_in, t_out = cube_chords(centre, h, omega)
-        out[c] = 4.0 * np.pi * np.maximum(t_out - t_in, 0.0).mean() / h ** 3
-    return out
 
 
 #: the axis of the box a point light's scattered light is walked on where its domain is the whole
