@@ -127,8 +127,10 @@ def reference_for(key: str, path: Path, ref_path: Path, spp: int, variant: str):
     ref = load_reference(ref_path) if ref_path.exists() else None
     if ref is None or ref.spp < spp:
         more = spp - (ref.spp if ref else 0)
+        # a reference is extended with passes of its own size (popvol.reference requires it)
+        passes = 8 if ref is None else max(1, more // (ref.spp // ref.passes))
         print(f"{key}: reference, {more} spp ...", flush=True)
-        ref = render_reference(popvol.load_scene(path), ref_path, more, variant, passes=8)
+        ref = render_reference(popvol.load_scene(path), ref_path, more, variant, passes=passes)
     if ref.halves is None:                      # made before the halves were kept
         return extend_by_half(key, path, ref_path, ref)
     return ref
@@ -197,10 +199,10 @@ def summary_row(key: str, s: dict) -> str:
             + f" (x{e[1]['brightness_ratio']:.2f}) | {'yes' if goal_met(d[1], d[2]) else 'no'} |")
 
 
-def means(measured: list[dict], only) -> list[str]:
-    """A line of the mean and median relMSE over the scenes, per variant and resolution (none
-    with ``--only``, whose kept scenes' figures are not at hand)."""
-    if only or not measured:
+def means(measured: list[dict]) -> list[str]:
+    """A line of the mean and median relMSE over the scenes, per variant and resolution (with
+    ``--only``, the kept scenes' figures as their sections print them: :func:`kept_sections`)."""
+    if not measured:
         return []
     parts = []
     for label, _overrides, resolutions in VARIANTS:
@@ -214,19 +216,25 @@ def means(measured: list[dict], only) -> list[str]:
     return [f"Mean (median) relMSE over the {len(measured)} scenes: " + "; ".join(parts) + ".", ""]
 
 
-def kept_sections(path: Path) -> dict[str, tuple[list[str], list[str]]]:
-    """Per scene key, the lines of its section and its summary row(s) in an existing
-    docs/ACCURACY.md (for ``--only``)."""
+def kept_sections(path: Path) -> dict[str, tuple[list[str], list[str], dict]]:
+    """Per scene key, the lines of its section, its summary row(s) and its figures in an
+    existing docs/ACCURACY.md (for ``--only``): {(method, cells): {"relmse", "relmse_extrapolated"}}
+    read back from its section's table (to 3 decimals, as printed)."""
     lines = path.read_text().splitlines()
     out, key = {}, None
+    labels = {label for label, _, _ in VARIANTS}
     for line in lines:
         if line.startswith("_Generated"):
             key = None
         elif line.startswith("## ") and not line.startswith("## Summary"):
             key = line[3:].strip()
-            out[key] = ([], [])
+            out[key] = ([], [], {})
         if key is not None:
             out[key][0].append(line)
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            if line.startswith("| ") and cells[0] in labels and cells[1].isdigit():
+                out[key][2][cells[0], int(cells[1])] = {"relmse": float(cells[2]),
+                                                        "relmse_extrapolated": float(cells[3])}
     for line in lines:
         cells = line.split(" | ")
         if line.startswith("| ") and cells[0][2:] in out:
@@ -260,6 +268,8 @@ def main():
                 ap.error(f"--only: docs/ACCURACY.md has no section for {key} to keep; run without --only")
             body += keep[key][0]
             summary += keep[key][1]
+            if keep[key][2]:
+                measured.append(keep[key][2])
             continue
         try:
             if kind == "suite":
@@ -324,7 +334,7 @@ def main():
     made = f"_Generated in {time.perf_counter() - t_all:.0f} s._"
     if args.only:
         made = f"_Generated in parts; {', '.join(args.only)} last, in {time.perf_counter() - t_all:.0f} s._"
-    text = head + summary + [""] + means(measured, args.only) + body + [made]
+    text = head + summary + [""] + means(measured) + body + [made]
     out = ROOT / "docs" / "ACCURACY.md"
     tmp = out.with_suffix(".md.tmp")
     tmp.write_text("\n".join(text) + "\n")
