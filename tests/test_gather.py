@@ -532,6 +532,17 @@ def test_environment_regions_are_gathered_and_relit_with_their_lights():
     np.testing.assert_allclose(sun - background, sun_alone, rtol=1e-4, atol=1e-6 * sun_alone.max())
 
 
+def rays_into_ball(r, R, n, seed):
+    """Points sampled about p = 0 as y = s u (u uniform on the sphere, s uniform in [0, r + R]),
+    which weights the volume by 1/|y|^2, and which of them land in the ball of radius R centred
+    at (r, 0, 0): (u float64 (n, 3), inside bool (n,))."""
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    s = rng.random(n) * (r + R)
+    return u, np.linalg.norm(s[:, None] * u - np.array([r, 0.0, 0.0]), axis=1) <= R
+
+
 @pytest.mark.parametrize("r_over_R", [0.0, 0.3, 0.99, 1.0, 1.01, 2.0, 3.9, 4.1, 10.0, 1e3])
 def test_mean_inverse_square_is_the_balls_mean(r_over_R):
     """kernels.gather.mean_inverse_square against a Monte Carlo mean of 1/|y - p|^2 over the
@@ -541,19 +552,72 @@ def test_mean_inverse_square_is_the_balls_mean(r_over_R):
     from popvol.kernels.gather import mean_inverse_square
     R = 0.7
     r = r_over_R * R
-    rng = np.random.default_rng(1)
     n = 2_000_000
-    u = rng.normal(size=(n, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    s = rng.random(n) * (r + R)
-    centre = np.array([r, 0.0, 0.0])                  # p at the origin
-    inside = np.linalg.norm(s[:, None] * u - centre, axis=1) <= R
+    u, inside = rays_into_ball(r, R, n, seed=1)
     mc = 4 * np.pi * (r + R) * inside.mean() / (4 / 3 * np.pi * R ** 3)
     se = 4 * np.pi * (r + R) * inside.std() / np.sqrt(n) / (4 / 3 * np.pi * R ** 3)
     if r_over_R < 100:                                # farther, few samples land in the ball
         assert mean_inverse_square(r, R) == pytest.approx(mc, rel=1e-12, abs=4 * se)
     if r_over_R >= 10:
         assert mean_inverse_square(r, R) == pytest.approx(1 / r ** 2, rel=R ** 2 / r ** 2)
+
+
+@pytest.mark.parametrize("r_over_R", [0.0, 0.3, 0.99, 1.0, 1.01, 2.0, 3.9, 10.0])
+def test_mean_radial_cosine_is_the_balls_weighted_mean_direction(r_over_R):
+    """kernels.gather.mean_radial_cosine against a Monte Carlo mean, over the ball, of the unit
+    vector from p weighted by 1/|y - p|^2: sampled about p as above (y = p + s u, s uniform in
+    [0, r + R]), each sample that lands in the ball already carries that weight, so the mean is
+    the mean of u over them, along the line from p to the ball's centre. Also its limits: 0 with
+    p at the centre, 2/3 on the surface, 1 - x^2/5 far away (x = R/r)."""
+    from popvol.kernels.gather import mean_radial_cosine
+    R = 0.7
+    r = r_over_R * R
+    u, inside = rays_into_ball(r, R, 2_000_000, seed=2)
+    ux = u[inside, 0]
+    assert abs(mean_radial_cosine(r, R) - ux.mean()) < 4 * ux.std() / np.sqrt(inside.sum()) + 1e-12
+    if r_over_R == 0.0:
+        assert mean_radial_cosine(r, R) == 0.0
+    if r_over_R == 1.0:
+        assert mean_radial_cosine(r, R) == pytest.approx(2.0 / 3.0, rel=1e-12)
+    if r_over_R >= 10:
+        assert mean_radial_cosine(r, R) == pytest.approx(1.0 - (R / r) ** 2 / 5.0, abs=(R / r) ** 4)
+
+
+def test_a_point_lights_own_cell_scatters_its_light_every_way(monkeypatch):
+    """The gather's emission lobes (kernels.gather.emission_lobes) of a point light: about the
+    cell's mean direction from the light with g times mean_radial_cosine, so the cell that holds
+    the light sends its light every way (g near 0), where the lobe at the cell's centre alone
+    would have sent it all about whichever way the centre lies from the light; a cell far from
+    it keeps nearly the medium's g."""
+    from popvol.kernels.gather import mean_radial_cosine
+    from popvol import renderer
+
+    def lobes_of(position):
+        scene = popvol.scene_from_dict({
+            "medium": {"type": "procedural", "style": "smooth", "resolution": 16, "scale": 4.0, "albedo": 0.9,
+                       "g": 0.8},
+            "lights": [{"type": "point", "position": list(position), "intensity": [1.0, 1.0, 1.0]}],
+            "camera": {"origin": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "width": 32, "height": 32},
+            "method": {"resolution": 16, "gather_resolution": 0}})
+        kept = []
+        real = renderer.gather_state
+        with monkeypatch.context() as m:             # keep what the gather transports
+            m.setattr(renderer, "gather_state", lambda *a, **k: kept.append(real(*a, **k)) or kept[-1])
+            popvol.render(scene, popvol.solve(scene))
+        box, seen, medium, grids, across_z, lobes, colour, sun = kept[0]
+        centres = medium[5] + np.argwhere(grids[0] > 0) * medium[6]
+        R = (3.0 * np.prod(medium[6]) / (4.0 * np.pi)) ** (1.0 / 3.0)
+        return np.linalg.norm(centres - np.asarray(position), axis=1), R, lobes[:, 0, 3], centres, medium[6]
+
+    r, R, g, centres, voxel = lobes_of((0.01, 0.0, 0.0))
+    # the light 1 % of a voxel from the centre of the cell nearest the middle
+    centre = centres[np.argmin(np.linalg.norm(centres, axis=1))]
+    r, R, g, centres, voxel = lobes_of(centre + 0.01 * voxel)
+    nearest, farthest = np.argmin(r), np.argmax(r)
+    for cell in (nearest, farthest):             # g (the unscattered light's lobe) times |m|
+        assert g[cell] == pytest.approx(0.8 * mean_radial_cosine(r[cell], R), abs=1e-6)
+    assert r[nearest] < 0.02 * voxel.max() and g[nearest] < 0.02
+    assert g[farthest] > 0.78
 
 
 def test_a_point_light_on_a_cell_centre_is_lit_as_the_cells_mean(tmp_path):

@@ -122,6 +122,23 @@ def mean_inverse_square(r, R):
     return 3.0 / (4.0 * r * R ** 3) * (2.0 * r * R + (R * R - r * r) * log)
 
 
+@nb.njit(inline="always", cache=True)
+def mean_radial_cosine(r, R):
+    """|m|, m the mean of the unit vector (y - p) / |y - p| weighted by 1/|y - p|^2 over the
+    ball of radius R whose centre c is r from the point p (a point light's directions over a cell
+    of the same volume, weighted as its unscattered light is). The weighted sum of the unit
+    vectors is the field of a uniform ball at p, V (c - p) / r^3 outside it and (4 pi / 3) (c - p)
+    inside, so |m| = 1 / (r^2 M) for r >= R and r / (R^3 M) for r < R, M = :func:`mean_inverse_square`:
+    1 far from p (1 - x^2/5 + ..., x = R/r), 2/3 at r = R and 0 at r = 0 (the light's own cell
+    sends its light every way)."""
+    if r <= 1e-6 * R:
+        return 0.0
+    mis = mean_inverse_square(r, R)
+    if r >= R:
+        return 1.0 / (r * r * mis)
+    return r / (R * R * R * mis)
+
+
 @nb.njit(**ON_ITS_OWN)
 def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffuse, cell_radius):
     """Row m of ``lobes`` (:func:`emission_lobes`)."""
@@ -134,12 +151,16 @@ def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffu
     corners = (ix, ix, iy, iy, iz, iz, 0.0, 0.0, 0.0)
     for l in range(is_point.shape[0]):
         point, mu, inv_r2, q0, q1, q2 = light_geometry(lights, spherical, l, x, (0.0, 0.0, 1.0))
+        spread = 1.0
         if point:                   # the light travels from its position p through x
             p = lights[POSITION][l]
             r = math.sqrt(inv_r2)
             axis = ((x[0] - p[0]) * r, (x[1] - p[1]) * r, (x[2] - p[2]) * r)
             # the cell's mean of 1/r^2, not its centre's: finite with the light in the cell
             inv_r2 = mean_inverse_square(1.0 / max(r, 1e-300), cell_radius)
+            # and its lobes about the cell's mean direction from the light, as broad as the
+            # directions across the cell make them (the first moment kept: g |m|)
+            spread = mean_radial_cosine(1.0 / max(r, 1e-300), cell_radius)
         else:
             axis = (lights[DIRECTION][l, 0], lights[DIRECTION][l, 1], lights[DIRECTION][l, 2])
         for c in range(n_ch):
@@ -159,7 +180,7 @@ def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffu
                     a0, a1, a2, gk, wk = jx, jy, jz, g_d, pd
                 else:
                     a0, a1, a2 = axis
-                    gk, wk = (g_dir, w_dir * inv_r2) if kind == 0 else (g_rest, w_rest * inv_r2)
+                    gk, wk = (g_dir * spread, w_dir * inv_r2) if kind == 0 else (g_rest * spread, w_rest * inv_r2)
                 lobes[m, k + kind, 0] = a0
                 lobes[m, k + kind, 1] = a1
                 lobes[m, k + kind, 2] = a2
@@ -178,7 +199,9 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     (kernels/render.py, light_in_scattering with the camera ray d = -w): per light l and field
     channel c, the walk's unscattered light and its rest about the light's direction at x
     (walk_lobe_weights; for a point light, divided by r^2 averaged over the cell,
-    :func:`mean_inverse_square`, since the lobe stands for the whole cell) and the diffusion stage's light about
+    :func:`mean_inverse_square`, and with g times :func:`mean_radial_cosine`, the spread of the
+    directions from the light across it, since the lobe stands for the whole cell) and the
+    diffusion stage's light about
     its flux (diffuse_lobe_axis); a grey field's lobe carries the light's RGB power, channel c's
     only colour c. Evaluated once per cell, they serve every direction of the gather."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
