@@ -128,7 +128,7 @@ def reference_for(key: str, path: Path, ref_path: Path, spp: int, variant: str):
     if ref is None or ref.spp < spp:
         more = spp - (ref.spp if ref else 0)
         # a reference is extended with passes of its own size (popvol.reference requires it)
-        passes = 8 if ref is None else max(1, more // (ref.spp // ref.passes))
+        passes = 8 if ref is None else max(1, more // ref.meta["spp_per_pass"])
         print(f"{key}: reference, {more} spp ...", flush=True)
         ref = render_reference(popvol.load_scene(path), ref_path, more, variant, passes=passes)
     if ref.halves is None:                      # made before the halves were kept

@@ -65,7 +65,7 @@ def reference(key: str, spp: int, folder: Path):
     if ref is None or ref.spp < spp:
         more = spp - (ref.spp if ref else 0)
         # a reference is extended with passes of its own size (popvol.reference requires it)
-        passes = 8 if ref is None else max(1, more // (ref.spp // ref.passes))
+        passes = 8 if ref is None else max(1, more // ref.meta["spp_per_pass"])
         print(f"{key}: reference, {more} spp ...", flush=True)
         ref = render_reference(lamp_scene(key), path, more, "llvm_ad_rgb", passes=passes)
     return ref

@@ -569,9 +569,10 @@ def test_mean_radial_cosine_is_the_balls_weighted_mean_direction(r_over_R):
     [0, r + R]), each sample that lands in the ball already carries that weight, so the mean is
     the mean of u over them, along the line from p to the ball's centre. Also its limits: 0 with
     p at the centre, 2/3 on the surface, 1 - x^2/5 far away (x = R/r)."""
-    from popvol.kernels.gather import mean_radial_cosine
+    from popvol.kernels.gather import mean_inverse_square, mean_radial_cosine as radial
     R = 0.7
     r = r_over_R * R
+    mean_radial_cosine = lambda r, R: radial(r, R, mean_inverse_square(r, R))
     u, inside = rays_into_ball(r, R, 2_000_000, seed=2)
     ux = u[inside, 0]
     assert abs(mean_radial_cosine(r, R) - ux.mean()) < 4 * ux.std() / np.sqrt(inside.sum()) + 1e-12
@@ -589,7 +590,7 @@ def test_a_point_lights_own_cell_scatters_its_light_every_way(monkeypatch):
     the light sends its light every way (g near 0), where the lobe at the cell's centre alone
     would have sent it all about whichever way the centre lies from the light; a cell far from
     it keeps nearly the medium's g."""
-    from popvol.kernels.gather import mean_radial_cosine
+    from popvol.kernels.gather import mean_inverse_square, mean_radial_cosine
     from popvol import renderer
 
     def lobes_of(position):
@@ -615,7 +616,8 @@ def test_a_point_lights_own_cell_scatters_its_light_every_way(monkeypatch):
     r, R, g, centres, voxel = lobes_of(centre + 0.01 * voxel)
     nearest, farthest = np.argmin(r), np.argmax(r)
     for cell in (nearest, farthest):             # g (the unscattered light's lobe) times |m|
-        assert g[cell] == pytest.approx(0.8 * mean_radial_cosine(r[cell], R), abs=1e-6)
+        assert g[cell] == pytest.approx(0.8 * mean_radial_cosine(r[cell], R, mean_inverse_square(r[cell], R)),
+                                        abs=1e-6)
     assert r[nearest] < 0.02 * voxel.max() and g[nearest] < 0.02
     assert g[farthest] > 0.78
 

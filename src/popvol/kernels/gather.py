@@ -123,20 +123,19 @@ def mean_inverse_square(r, R):
 
 
 @nb.njit(inline="always", cache=True)
-def mean_radial_cosine(r, R):
+def mean_radial_cosine(r, R, M):
     """|m|, m the mean of the unit vector (y - p) / |y - p| weighted by 1/|y - p|^2 over the
     ball of radius R whose centre c is r from the point p (a point light's directions over a cell
-    of the same volume, weighted as its unscattered light is). The weighted sum of the unit
-    vectors is the field of a uniform ball at p, V (c - p) / r^3 outside it and (4 pi / 3) (c - p)
-    inside, so |m| = 1 / (r^2 M) for r >= R and r / (R^3 M) for r < R, M = :func:`mean_inverse_square`:
-    1 far from p (1 - x^2/5 + ..., x = R/r), 2/3 at r = R and 0 at r = 0 (the light's own cell
-    sends its light every way)."""
+    of the same volume, weighted as its unscattered light is); M = mean_inverse_square(r, R), the
+    weights' mean, which the caller has. The weighted sum of the unit vectors is the field of a
+    uniform ball at p, V (c - p) / r^3 outside it and (4 pi / 3) (c - p) inside, so |m| =
+    1 / (r^2 M) for r >= R and r / (R^3 M) for r < R: 1 far from p (1 - x^2/5 + ..., x = R/r),
+    2/3 at r = R and 0 at r = 0 (the light's own cell sends its light every way)."""
     if r <= 1e-6 * R:
         return 0.0
-    mis = mean_inverse_square(r, R)
     if r >= R:
-        return 1.0 / (r * r * mis)
-    return r / (R * R * R * mis)
+        return 1.0 / (r * r * M)
+    return r / (R * R * R * M)
 
 
 @nb.njit(**ON_ITS_OWN)
@@ -157,10 +156,11 @@ def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffu
             r = math.sqrt(inv_r2)
             axis = ((x[0] - p[0]) * r, (x[1] - p[1]) * r, (x[2] - p[2]) * r)
             # the cell's mean of 1/r^2, not its centre's: finite with the light in the cell
-            inv_r2 = mean_inverse_square(1.0 / max(r, 1e-300), cell_radius)
+            dist = 1.0 / max(r, 1e-300)
+            inv_r2 = mean_inverse_square(dist, cell_radius)
             # and its lobes about the cell's mean direction from the light, as broad as the
             # directions across the cell make them (the first moment kept: g |m|)
-            spread = mean_radial_cosine(1.0 / max(r, 1e-300), cell_radius)
+            spread = mean_radial_cosine(dist, cell_radius, inv_r2)
         else:
             axis = (lights[DIRECTION][l, 0], lights[DIRECTION][l, 1], lights[DIRECTION][l, 2])
         for c in range(n_ch):
