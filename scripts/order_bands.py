@@ -22,7 +22,13 @@ reference's luminance, then the brightness ratios popvol / Mitsuba of order 1, o
 >= 3 and orders >= 2, with the noise (one standard deviation) of each ratio from the references'
 passes, and orders >= 2 for the one-lobe walk alone (``solver = "sweep"``, ``isotropic =
 "walk"``; its single scattering is the default's). Without the gather (``--gather 0``) popvol's
-orders 2 and >= 3 are not apart, and those columns are left out.
+orders 2 and >= 3 are not apart, and those columns are left out. Where the full reference has two
+independent halves (``Reference.halves``), the bands are ranked on one half and the full
+reference's light in them measured on the other, as ``popvol compare`` does: ranked on the image
+they are measured on, a few thousand spp of a dense cloud let its fireflies fill the brightest
+tenth (the WDAS cloud at density x10 and 128 spp in 8 passes: its orders >= 3 there x0.57 ranked on itself,
+x1.12 ranked on one half). ``--resolution 64,128,256`` repeats popvol's columns at each light-domain
+resolution (default: the scene's), so that convergence shows.
 """
 from __future__ import annotations
 
@@ -61,6 +67,8 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "build" / "orders"))
     ap.add_argument("--gather", type=int, default=None, help="method.gather (default: the scene's)")
     ap.add_argument("--gather-resolution", type=int, default=None, help="method.gather_resolution")
+    ap.add_argument("--resolution", default=None, help="popvol's light-domain resolutions, comma-separated "
+                    "(default: the scene's)")
     args = ap.parse_args()
     scene_path = Path(args.scene)
     full_path = Path(args.reference) if args.reference else scene_path.with_suffix(".exr")
@@ -80,20 +88,42 @@ def main() -> None:
         cuts[depth] = load_reference(path)
 
     mask = metrics.medium_mask(full.image, scene)
-    masks = {"all": mask, **metrics.bands(full.image, mask)}
+    # ranked on one half, measured on the other (module docstring); the other half's variance
+    # is the full reference's times passes / its passes
+    halves, half_passes = full.halves, full.half_passes
+    if halves is not None and half_passes is not None:
+        masks = {"all": mask, **metrics.bands(halves[0], mask)}
+        full_level = luminance_sums(halves[1], masks)
+        full_var = {k: v * full.passes / half_passes[1] for k, v in variance_sums(full, masks).items()}
+        ranked = f"bands ranked on one half of the full reference ({half_passes[0]} passes), measured on the other"
+    else:
+        masks = {"all": mask, **metrics.bands(full.image, mask)}
+        full_level, full_var = luminance_sums(full.image, masks), variance_sums(full, masks)
+        ranked = "bands ranked on the full reference itself (it has no halves)"
+    levels = [luminance_sums(cuts[d].image, masks) for d in DEPTHS] + [full_level]
+    var = [variance_sums(cuts[d], masks) for d in DEPTHS] + [full_var]
+    gathered = scene.method.gather > 0
+    print(f"{scene_path.name}: {w}x{h}, {int(mask.sum())} pixels see the medium; references "
+          + ", ".join(f"max_depth {d} {cuts[d].spp} spp" for d in DEPTHS) + f", full {full.spp} spp; {ranked}")
+    resolutions = ([int(r) for r in args.resolution.split(",")] if args.resolution
+                   else [scene.method.resolution])
+    for resolution in resolutions:
+        print_orders(scene_path, w, h, dict(method, resolution=resolution), masks, levels, var, gathered)
+
+
+def print_orders(scene_path, w, h, method, masks, levels, var, gathered) -> None:
+    """popvol's order bands at the method's overrides ``method`` against Mitsuba's ``levels`` (the
+    cut references' and the full one's luminance sums per band) and their variances ``var``."""
+    scene = popvol.load_scene(scene_path, width=w, height=h, **method)
     solution = popvol.solve(scene)
     single = popvol.render(scene, solution.single_scattering())
     # the unscattered light alone, gathered: orders 1 and 2 (the gather scatters it once more)
-    gathered = scene.method.gather > 0
     two = popvol.render(scene, dataclasses.replace(solution.single_scattering(), single=False)) if gathered else None
     whole = popvol.render(scene, solution)
     walk_scene = popvol.load_scene(scene_path, width=w, height=h, solver="sweep", isotropic="walk", **method)
     walk_whole = popvol.render(walk_scene, popvol.solve(walk_scene))
 
-    levels = [luminance_sums(cuts[d].image, masks) for d in DEPTHS] + [luminance_sums(full.image, masks)]
-    var = [variance_sums(cuts[d], masks) for d in DEPTHS] + [variance_sums(full, masks)]
-    print(f"{scene_path.name}: {w}x{h}, {int(mask.sum())} pixels see the medium; references "
-          + ", ".join(f"max_depth {d} {cuts[d].spp} spp" for d in DEPTHS) + f", full {full.spp} spp")
+    print(f"\npopvol at {scene.method.resolution} cells:")
     columns = ["order 1", "order 2", "orders >= 3"] if gathered else ["order 1"]
     print(f"{'band':8s} " + " ".join(f"{'order ' + o:>10s}" for o in ORDER_BANDS)
           + "".join(f" {'popvol / ' + c:>27s}" for c in columns + ["orders >= 2"]) + f" {'walk alone':>10s}")
