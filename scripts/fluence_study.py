@@ -4,10 +4,12 @@ beside the checkout):
 
     python scripts/fluence_study.py [--resolution 64,128,256] [--angles 0,90,180] [--photons N]
                                     [--block 2] [--batches 4] [--seed 1] [--solver ordinates]
+                                    [--scene SCENE.toml]
 
 What it measures, per sun direction (scenes/accuracy/wdas_angle_<A>.toml: one sun each; the
-fields do not depend on the camera, so the three angles are three sun directions) and per
-popvol resolution (the light domain's; the medium's voxels are the same at every resolution):
+fields do not depend on the camera, so the three angles are three sun directions; or the scene
+``--scene``, lit by one sun, in place of the angles) and per popvol resolution (the light
+domain's; the medium's voxels are the same at every resolution):
 
 * The Monte Carlo (Numba, one thread, nothing of popvol's code): photons of unit irradiance
   enter over a plane perpendicular to the sun covering the projection of the box of the
@@ -32,6 +34,9 @@ popvol resolution (the light domain's; the medium's voxels are the same at every
   + phid, its scattered first moment = (phia - direct) d + J, and its source toward the camera
   (the lobes of kernels/render.py walk_lobes + lobe_toward, i.e. the renderer without the
   gather): (phi - direct) f_hg(d . w_o; g A_rest) + phid f_hg(J/|J| . w_o; g min(|J|/phid, cap)).
+  With the ordinates' walks (``--solver ordinates``) the walk's scattered light is itself one lobe
+  about its own first moment in phid and J (pipeline.ordinate_fields): "diff%" is then 100 and
+  J.d/pd and |J|/pd are that light's mean cosines.
   Averaged over the same blocks (the mean of the voxel-centre values).
 
 Printed per angle and resolution, over blocks holding density > 0, grouped by the sun's optical
@@ -320,8 +325,16 @@ def grey(x) -> float:
     return float(np.ravel(np.asarray(x, np.float64))[0])
 
 
-def scene_path(angle: int) -> Path:
+def scene_path(angle: int | Path) -> Path:
+    """The suite's WDAS cloud with its sun at ``angle`` degrees from the view, or the scene
+    ``angle`` itself where that is a path (``--scene``)."""
+    if isinstance(angle, Path):
+        return angle
     return ROOT / "scenes" / "accuracy" / f"wdas_angle_{angle:03d}.toml"
+
+
+def label(angle: int | Path) -> str:
+    return angle.stem if isinstance(angle, Path) else f"angle {angle:3d}"
 
 
 def geometry(scene):
@@ -347,7 +360,8 @@ def scene_key(scene) -> str:
 def run_mc(scene, n_photons: int, b: int, batches: int, seed: int, angle: int) -> dict:
     """The MC's per-batch block tallies, as fluence per unit irradiance (cached)."""
     CACHE.mkdir(parents=True, exist_ok=True)
-    path = CACHE / f"mc_{CACHE_TAG}_a{angle:03d}_{scene_key(scene)}_n{n_photons}_b{b}_k{batches}_s{seed}.npz"
+    tag = angle.stem if isinstance(angle, Path) else f"a{angle:03d}"
+    path = CACHE / f"mc_{CACHE_TAG}_{tag}_{scene_key(scene)}_n{n_photons}_b{b}_k{batches}_s{seed}.npz"
     if path.exists():
         z = np.load(path)
         return {k: z[k] for k in z.files}
@@ -510,7 +524,7 @@ def popvol_fields(sol, scene):
 
 
 # ----------------------------------------------------------------------------- the study
-def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: int, solver: str = "sweep") -> None:
+def study(angle: int | Path, resolutions, n_photons: int, b: int, batches: int, seed: int, solver: str = "sweep") -> None:
     scene = popvol.load_scene(str(scene_path(angle)), resolution=resolutions[0], solver=solver)
     m = scene.medium
     rho = np.ascontiguousarray(m.density, np.float32)
@@ -522,7 +536,7 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
     mc = run_mc(scene, n_photons, b, batches, seed, angle)
     tal = mc["tallies"].astype(np.float64)                      # (K, NTAL, cx, cy, cz)
     K = tal.shape[0]
-    print(f"\n=== angle {angle:3d}: sun d = ({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f}), albedo {grey(m.albedo)}, "
+    print(f"\n=== {label(angle)}: sun d = ({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f}), albedo {grey(m.albedo)}, "
           f"g {g}, sigma_t max {grey(m.scale) * rho.max():.3g}/unit, voxel {vs:.3f}, blocks of {b}^3")
     print(f"MC: {int(mc['photons'])} photons in {K} batches, {float(mc['seconds']):.0f} s on 1 thread, "
           f"{int(mc['real']) / int(mc['photons']):.1f} real and {int(mc['tentative']) / int(mc['photons']):.1f} "
@@ -544,7 +558,7 @@ def study(angle: int, resolutions, n_photons: int, b: int, batches: int, seed: i
         pf = popvol_fields(sol, scene)
         P = {k: blocks(v, b) for k, v in pf.items()}
         tau = -np.log(np.maximum(P["direct"], 1e-300))
-        print(f"\n-- angle {angle}, resolution {res} (popvol solve {ts:.1f} s); blocks with density > 0: {sel.sum()}")
+        print(f"\n-- {label(angle)}, resolution {res} (popvol solve {ts:.1f} s); blocks with density > 0: {sel.sum()}")
         # the unscattered check
         print("unscattered check, MC / popvol direct (density-weighted):")
         for lo, hi in BANDS[:4]:
@@ -648,10 +662,12 @@ def main():
     ap.add_argument("--batches", type=int, default=4, help="independent batches, for the MC's noise")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--solver", default="sweep", help="popvol's experimental.solver (e.g. ordinates)")
+    ap.add_argument("--scene", default=None, help="a scene lit by one sun, in place of --angles")
     a = ap.parse_args()
+    scene = Path(a.scene).resolve() if a.scene else None
     os.chdir(ROOT)
     res = [int(x) for x in a.resolution.split(",")]
-    for angle in (int(x) for x in a.angles.split(",")):
+    for angle in [scene] if scene else (int(x) for x in a.angles.split(",")):
         study(angle, res, a.photons, a.block, a.batches, a.seed, a.solver)
 
 
