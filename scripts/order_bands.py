@@ -28,7 +28,9 @@ reference's light in them measured on the other, as ``popvol compare`` does: ran
 they are measured on, a few thousand spp of a dense cloud let its fireflies fill the brightest
 tenth (the WDAS cloud at density x10 and 128 spp in 8 passes: its orders >= 3 there x0.57 ranked on itself,
 x1.12 ranked on one half). ``--resolution 64,128,256`` repeats popvol's columns at each light-domain
-resolution (default: the scene's), so that convergence shows.
+resolution (default: the scene's), so that convergence shows. ``--halve-voxels`` solves and
+renders the scene's medium on voxels half as wide (its density trilinear at their centres, the
+same box), so that the gather, which never takes blocks finer than the voxels, is refined too.
 """
 from __future__ import annotations
 
@@ -67,6 +69,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "build" / "orders"))
     ap.add_argument("--gather", type=int, default=None, help="method.gather (default: the scene's)")
     ap.add_argument("--gather-resolution", type=int, default=None, help="method.gather_resolution")
+    ap.add_argument("--halve-voxels", action="store_true", help="the medium on voxels half as wide")
     ap.add_argument("--resolution", default=None, help="popvol's light-domain resolutions, comma-separated "
                     "(default: the scene's)")
     args = ap.parse_args()
@@ -108,22 +111,44 @@ def main() -> None:
     resolutions = ([int(r) for r in args.resolution.split(",")] if args.resolution
                    else [scene.method.resolution])
     for resolution in resolutions:
-        print_orders(scene_path, w, h, dict(method, resolution=resolution), masks, levels, var, gathered)
+        print_orders(scene_path, w, h, dict(method, resolution=resolution), masks, levels, var, gathered,
+                     args.halve_voxels)
 
 
-def print_orders(scene_path, w, h, method, masks, levels, var, gathered) -> None:
+def halved(medium):
+    """``medium`` on voxels half as wide over the same box, its density trilinear (clamped to the
+    edge) at the new centres."""
+    density = medium.density.astype(np.float32)
+    for axis in range(3):
+        n = density.shape[axis]
+        x = np.clip(np.arange(2 * n) / 2.0 - 0.25, 0, n - 1)
+        i0 = np.floor(x).astype(int)
+        f = (x - i0).astype(np.float32).reshape([-1 if a == axis else 1 for a in range(3)])
+        density = (np.take(density, i0, axis=axis) * (1 - f)
+                   + np.take(density, np.minimum(i0 + 1, n - 1), axis=axis) * f)
+    voxel = medium.voxel_size / 2
+    return dataclasses.replace(medium, density=np.ascontiguousarray(density, np.float32), voxel_size=voxel,
+                               origin=medium.origin - voxel / 2)
+
+
+def print_orders(scene_path, w, h, method, masks, levels, var, gathered, halve: bool = False) -> None:
     """popvol's order bands at the method's overrides ``method`` against Mitsuba's ``levels`` (the
-    cut references' and the full one's luminance sums per band) and their variances ``var``."""
+    cut references' and the full one's luminance sums per band) and their variances ``var``;
+    ``halve``: on :func:`halved` voxels."""
     scene = popvol.load_scene(scene_path, width=w, height=h, **method)
+    if halve:
+        scene = dataclasses.replace(scene, medium=halved(scene.medium))
     solution = popvol.solve(scene)
     single = popvol.render(scene, solution.single_scattering())
     # the unscattered light alone, gathered: orders 1 and 2 (the gather scatters it once more)
     two = popvol.render(scene, dataclasses.replace(solution.single_scattering(), single=False)) if gathered else None
     whole = popvol.render(scene, solution)
     walk_scene = popvol.load_scene(scene_path, width=w, height=h, solver="sweep", isotropic="walk", **method)
+    if halve:
+        walk_scene = dataclasses.replace(walk_scene, medium=scene.medium)
     walk_whole = popvol.render(walk_scene, popvol.solve(walk_scene))
 
-    print(f"\npopvol at {scene.method.resolution} cells:")
+    print(f"\npopvol at {scene.method.resolution} cells" + (" on voxels half as wide:" if halve else ":"))
     columns = ["order 1", "order 2", "orders >= 3"] if gathered else ["order 1"]
     print(f"{'band':8s} " + " ".join(f"{'order ' + o:>10s}" for o in ORDER_BANDS)
           + "".join(f" {'popvol / ' + c:>27s}" for c in columns + ["orders >= 2"]) + f" {'walk alone':>10s}")
