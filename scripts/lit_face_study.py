@@ -73,21 +73,23 @@ height = 96
     return scene
 
 
-def trilinear(a: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """a (nx, ny, nz) at index-space points p (m, 3), trilinear, clamped to the edge."""
-    s = np.array(a.shape)
+def corners(p: np.ndarray, shape) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The trilinear stencil of index-space points p (m, 3) in a grid of ``shape``, clamped to
+    the edge: eight (corner indices int (m, 3), weights (m,))."""
+    s = np.array(shape)
     p = np.clip(p, 0, s - 1 - 1e-9)
     i = np.floor(p).astype(int)
     f = p - i
-    out = np.zeros(len(p))
-    for dx in (0, 1):
-        for dy in (0, 1):
-            for dz in (0, 1):
-                w = ((f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
-                     * (f[:, 2] if dz else 1 - f[:, 2]))
-                out += w * a[np.minimum(i[:, 0] + dx, s[0] - 1), np.minimum(i[:, 1] + dy, s[1] - 1),
-                             np.minimum(i[:, 2] + dz, s[2] - 1)]
+    out = []
+    for c in np.ndindex(2, 2, 2):
+        w = np.prod(np.where(np.array(c) == 1, f, 1 - f), axis=1)
+        out.append((np.minimum(i + c, s - 1), w))
     return out
+
+
+def trilinear(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """a (nx, ny, nz) at index-space points p (m, 3), trilinear, clamped to the edge."""
+    return sum(w * a[tuple(c.T)] for c, w in corners(p, a.shape))
 
 
 def exact_direct(density: np.ndarray, q: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -122,17 +124,10 @@ def study(scene_path: Path, resolution: int, masks, single_ref) -> None:
     # the same interpolation applied to exact values at the domain's cell centres
     sel = np.flatnonzero((rho < 1) & (exact > 0.9))
     loc = ((med.origin + idx[sel] * med.voxel_size) - dom.origin) @ dom.frame.T / dom.h - 0.5
-    p = np.clip(loc, 0, np.array(dom.shape) - 1 - 1e-9)
-    i0 = np.floor(p).astype(int)
-    f = p - i0
     interp = np.zeros(len(sel))
-    for dx in (0, 1):
-        for dy in (0, 1):
-            for dz in (0, 1):
-                centre = dom.origin + ((i0 + [dx, dy, dz] + 0.5) @ dom.frame) * dom.h
-                w = ((f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
-                     * (f[:, 2] if dz else 1 - f[:, 2]))
-                interp += w * exact_direct(density, (centre - med.origin) / med.voxel_size, d)
+    for c, w in corners(loc, dom.shape):
+        centre = dom.origin + ((c + 0.5) @ dom.frame) * dom.h
+        interp += w * exact_direct(density, (centre - med.origin) / med.voxel_size, d)
     print(f"  ramp, exact > 0.9: the exact values at the domain's cell centres, interpolated, / exact "
           f"x{interp.sum() / exact[sel].sum():.3f}")
     if single_ref is not None:
