@@ -42,6 +42,7 @@ import numpy as np
 
 import popvol
 from popvol import metrics
+from popvol.kernels.sampling import resample
 from popvol.reference import load_reference, render_reference
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,18 +118,17 @@ def main() -> None:
 
 def halved(medium):
     """``medium`` on voxels half as wide over the same box, its density trilinear (clamped to the
-    edge) at the new centres."""
-    density = medium.density.astype(np.float32)
-    for axis in range(3):
-        n = density.shape[axis]
-        x = np.clip(np.arange(2 * n) / 2.0 - 0.25, 0, n - 1)
-        i0 = np.floor(x).astype(int)
-        f = (x - i0).astype(np.float32).reshape([-1 if a == axis else 1 for a in range(3)])
-        density = (np.take(density, i0, axis=axis) * (1 - f)
-                   + np.take(density, np.minimum(i0 + 1, n - 1), axis=axis) * f)
-    voxel = medium.voxel_size / 2
-    return dataclasses.replace(medium, density=np.ascontiguousarray(density, np.float32), voxel_size=voxel,
-                               origin=medium.origin - voxel / 2)
+    edge) at the new centres, sampled as a light domain samples it (kernels.sampling.resample, an
+    unrotated domain of cubic cells: the medium's voxels must be cubes)."""
+    voxel = np.asarray(medium.voxel_size, np.float64)
+    if not np.allclose(voxel, voxel[0]):
+        raise SystemExit(f"--halve-voxels: {medium.source} has voxels of {voxel.tolist()}, not cubes")
+    lo = medium.origin - voxel / 2                   # the corner of the medium's box
+    shape = tuple(2 * n for n in medium.density.shape)
+    density = np.empty(shape, np.float32)
+    resample(np.ascontiguousarray(medium.density, np.float32), 1.0 / voxel, np.asarray(medium.origin, np.float64),
+             np.eye(3), lo, float(voxel[0]) / 2, shape, True, density)
+    return dataclasses.replace(medium, density=density, voxel_size=voxel / 2, origin=lo + voxel / 4)
 
 
 def print_orders(scene_path, w, h, method, masks, levels, var, gathered, halve: bool = False) -> None:

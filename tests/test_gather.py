@@ -593,13 +593,16 @@ def test_a_point_lights_own_cell_scatters_its_light_every_way(monkeypatch):
     from popvol.kernels.gather import mean_inverse_square, mean_radial_cosine
     from popvol import renderer
 
-    def lobes_of(position):
-        scene = popvol.scene_from_dict({
+    def scene_at(position):
+        return popvol.scene_from_dict({
             "medium": {"type": "procedural", "style": "smooth", "resolution": 16, "scale": 4.0, "albedo": 0.9,
                        "g": 0.8},
             "lights": [{"type": "point", "position": list(position), "intensity": [1.0, 1.0, 1.0]}],
             "camera": {"origin": [0.0, 0.0, 4.0], "target": [0.0, 0.0, 0.0], "width": 32, "height": 32},
             "method": {"resolution": 16, "gather_resolution": 0}})
+
+    def lobes_of(position):
+        scene = scene_at(position)
         kept = []
         real = renderer.gather_state
         with monkeypatch.context() as m:             # keep what the gather transports
@@ -608,12 +611,14 @@ def test_a_point_lights_own_cell_scatters_its_light_every_way(monkeypatch):
         box, seen, medium, grids, across_z, lobes, colour, sun = kept[0]
         centres = medium[5] + np.argwhere(grids[0] > 0) * medium[6]
         R = (3.0 * np.prod(medium[6]) / (4.0 * np.pi)) ** (1.0 / 3.0)
-        return np.linalg.norm(centres - np.asarray(position), axis=1), R, lobes[:, 0, 3], centres, medium[6]
+        return np.linalg.norm(centres - np.asarray(position), axis=1), R, lobes[:, 0, 3], medium[6]
 
-    r, R, g, centres, voxel = lobes_of((0.01, 0.0, 0.0))
-    # the light 1 % of a voxel from the centre of the cell nearest the middle
+    # the light 1 % of a voxel from the centre of the non-empty voxel nearest the middle (the
+    # gather's cells are the voxels: gather_resolution 0)
+    med = scene_at((0.0, 0.0, 0.0)).medium
+    centres = med.origin + np.argwhere(med.density > 0) * med.voxel_size
     centre = centres[np.argmin(np.linalg.norm(centres, axis=1))]
-    r, R, g, centres, voxel = lobes_of(centre + 0.01 * voxel)
+    r, R, g, voxel = lobes_of(centre + 0.01 * med.voxel_size)
     nearest, farthest = np.argmin(r), np.argmax(r)
     for cell in (nearest, farthest):             # g (the unscattered light's lobe) times |m|
         assert g[cell] == pytest.approx(0.8 * mean_radial_cosine(r[cell], R, mean_inverse_square(r[cell], R)),
