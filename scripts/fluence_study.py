@@ -23,9 +23,13 @@ domain's; the medium's voxels are the same at every resolution):
   volume / its volume: the unscattered fluence (photons before their first real collision),
   and for the scattered light (after >= 1 real collision) its fluence, first-moment vector
   (track length x direction), its second Legendre moment about the sun's direction d
-  (track length x P2(u . d), P2(x) = (3x^2 - 1)/2; / the fluence = B, in [-1/2, 1]) and its
+  (track length x P2(u . d), P2(x) = (3x^2 - 1)/2; / the fluence = B, in [-1/2, 1]), its
   in-scattered source toward the scene's camera, int L_s(w) f_hg(w . w_o; g) dw, w_o the unit
-  vector from the block's centre to the camera.
+  vector from the block's centre to the camera, and its fluence by the eighteen-ordinate
+  walk's cell of the sphere it travels in (the ordinate nearest its direction, walk.ORDINATES18
+  in the sun's domain frame, domains.light_frame).
+  A medium whose voxels are not cubes is put on cubes as wide as their smallest side
+  (``on_cubic_voxels``), for the Monte Carlo and popvol alike.
   The noise is the spread over ``--batches`` independent batches (different seeds).
 * popvol: ``popvol.solve`` per unit irradiance; on the voxel centres the walk's fluence phi
   (unscattered part included), its unscattered part direct = exp(-tau), phia (= phi x the
@@ -59,7 +63,9 @@ fluence, A and B (what a walk that also tallied sum(W a^2) could render: a mixtu
 lobes about d has Legendre coefficients P_l = sum(W a^l) / sum(W)); the closure
 (``two_point``): weights 1/2 at A -+ sqrt(B - A^2); where a point would leave [-1, 1] it sits
 on the bound and the other point and the weights keep the mean and variance; B - A^2 clamped
-to [0, 1 - A^2] (B < A^2 is no mixture of HG lobes about d: then one lobe). A lobe HG(a) about
+to [0, 1 - A^2] (B < A^2 is no mixture of HG lobes about d: then one lobe); "18 ordinates,
+HG(k) each" the MC's fluence in each ordinate's cell of the sphere as a lobe HG(k) about that
+ordinate, k in ``KERNELS``. A lobe HG(a) about
 d scatters toward w_o as f_hg(d . w_o; g a), as in kernels/render.py. Each ratio is +- the
 spread over the batches. Before it, per band: the MC's A, B, the HG lobe's B = A^2 (of the
 band's A; <A^2> the mean over the blocks, weighted as the band's sums), B<A^2% the share, so weighted,
@@ -73,6 +79,7 @@ and seed.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import math
 import os
@@ -85,6 +92,7 @@ import numba as nb
 import numpy as np
 
 import popvol
+from popvol.kernels.sampling import resample
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -94,8 +102,9 @@ BANDS = [(0.0, 0.5), (0.5, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, math.inf)]
 INV_4PI = 1.0 / (4.0 * math.pi)
 # tally rows
 PHI, FX, FY, FZ, SCAM, UNSC, P2D = range(7)
-NTAL = 7
-CACHE_TAG = "v2"                 # bump when the tallies change (v2: + P2D)
+ORD = 7                          # then 18 rows: the scattered fluence by the ordinate it lies nearest
+NTAL = ORD + 18
+CACHE_TAG = "v3"                 # bump when the tallies change (v2: + P2D, v3: + ORD)
 
 
 # ----------------------------------------------------------------------------- Monte Carlo
@@ -153,7 +162,7 @@ def _to_box_exit(px, py, pz, ux, uy, uz, n, far):
 
 
 @nb.njit(inline="always")
-def _tally(tal, wo, d, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
+def _tally(tal, wo, d, E, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
     """Add w x (length of the flight p + t u, 0 <= t < L, in each block) to the block's tallies
     (Amanatides-Woo over blocks of b voxel units; coordinates q = index + 1/2, grid [0, n])."""
     ix = min(max(int(px / b), 0), nc[0] - 1)
@@ -162,6 +171,12 @@ def _tally(tal, wo, d, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
     sx, tx, dx = _first_crossing(px, ux, ix, b)
     sy, ty, dy = _first_crossing(py, uy, iy, b)
     sz, tz, dz = _first_crossing(pz, uz, iz, b)
+    o_near, best = 0, -2.0
+    if scattered:
+        for o in range(E.shape[0]):
+            c = ux * E[o, 0] + uy * E[o, 1] + uz * E[o, 2]
+            if c > best:
+                o_near, best = o, c
     t = 0.0
     while True:
         tn = min(tx, ty, tz, L)
@@ -177,6 +192,7 @@ def _tally(tal, wo, d, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
                 tal[SCAM, ix, iy, iz] += wl * _f_hg(mu, g)
                 c = ux * d[0] + uy * d[1] + uz * d[2]
                 tal[P2D, ix, iy, iz] += wl * (1.5 * c * c - 0.5)
+                tal[ORD + o_near, ix, iy, iz] += wl
             else:
                 tal[UNSC, ix, iy, iz] += wl
         t = tn
@@ -200,7 +216,7 @@ def _tally(tal, wo, d, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
 
 
 @nb.njit
-def _mc(rho, sig_vox, albedo, g, d, e1, e2, centre, half1, half2, b, wo, n_photons, seed, tal):
+def _mc(rho, sig_vox, albedo, g, d, E, e1, e2, centre, half1, half2, b, wo, n_photons, seed, tal):
     """n_photons photons along d entering over the rectangle centre + a e1 + c e2 (|a| <= half1,
     |c| <= half2); q coordinates (voxel units, grid [0, n]); sig_vox: sigma_t per unit density
     per voxel length. Adds the raw track lengths (voxel units) to ``tal``; returns (real
@@ -250,7 +266,7 @@ def _mc(rho, sig_vox, albedo, g, d, e1, e2, centre, half1, half2, b, wo, n_photo
             s = -math.log(1.0 - np.random.random()) / maj
             te = max(_to_box_exit(px, py, pz, ux, uy, uz, nq, 1e300), 0.0)
             L = min(s, te)
-            _tally(tal, wo, d, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g)
+            _tally(tal, wo, d, E, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g)
             if s >= te:
                 break
             px += s * ux
@@ -347,6 +363,36 @@ def geometry(scene):
     return vs[0], corner
 
 
+def load(angle: int | Path, resolution: int, solver: str):
+    """The scene (:func:`scene_path`) at the light domains' ``resolution``, its medium on cubic
+    voxels (:func:`on_cubic_voxels`)."""
+    scene = popvol.load_scene(str(scene_path(angle)), resolution=resolution, solver=solver)
+    return dataclasses.replace(scene, medium=on_cubic_voxels(scene.medium))
+
+
+def on_cubic_voxels(medium):
+    """``medium`` itself where its voxels are cubes; else the same box on cubes as wide as its
+    smallest side (each side a whole number of them), the density sampled at their centres as
+    a light domain samples it (kernels.sampling.resample: trilinear, clamped to the edge in the
+    outer half voxel). The Monte Carlo and popvol then both see that medium, which differs
+    from the scene's where the density is not linear across a voxel."""
+    voxel = np.asarray(medium.voxel_size, np.float64)
+    cell = float(voxel.min())
+    ratio = voxel / cell
+    if np.allclose(ratio, 1.0, rtol=1e-6):
+        return medium
+    if not np.allclose(ratio, np.round(ratio), rtol=1e-6):
+        raise SystemExit(f"fluence_study: voxels of {voxel.tolist()} are not whole multiples of their smallest side")
+    lo = np.asarray(medium.origin, np.float64) - voxel / 2          # the corner of the medium's box
+    shape = tuple(int(n * r) for n, r in zip(medium.density.shape, np.round(ratio).astype(int)))
+    density = np.empty(shape, np.float32)
+    resample(np.ascontiguousarray(medium.density, np.float32), 1.0 / voxel, np.asarray(medium.origin, np.float64),
+             np.eye(3), lo, cell, shape, True, density)
+    print(f"fluence_study: the medium's {medium.density.shape} voxels of {voxel.tolist()} resampled to "
+          f"{shape} cubes of {cell:g}")
+    return dataclasses.replace(medium, density=density, voxel_size=np.full(3, cell), origin=lo + cell / 2)
+
+
 def scene_key(scene) -> str:
     """A short hash of what the MC's tallies depend on: the density, sigma_t's scale, the albedo,
     g, the voxel grid, the sun's direction and the camera's position."""
@@ -401,7 +447,7 @@ def run_mc(scene, n_photons: int, b: int, batches: int, seed: int, angle: int) -
     real = tent = 0
     for k in range(batches):
         tal = np.zeros((NTAL,) + nc, np.float64)
-        r, t = _mc(rho, sig_vox, albedo, g, d, e1, e2, centre, half1, half2, float(b), wo, per,
+        r, t = _mc(rho, sig_vox, albedo, g, d, ordinates_world(d), e1, e2, centre, half1, half2, float(b), wo, per,
                    seed * 1000 + k, tal)
         real += r
         tent += t
@@ -412,6 +458,16 @@ def run_mc(scene, n_photons: int, b: int, batches: int, seed: int, angle: int) -
            "tentative": np.int64(tent), "photons": np.int64(per * batches)}
     np.savez(path, **res)
     return res
+
+
+def ordinates_world(d) -> np.ndarray:
+    """float64 (18, 3): the eighteen ordinates' unit directions (walk.ORDINATES18, in a sun's
+    domain frame d, u, v: domains.light_frame) in the world's frame."""
+    from popvol.domains import light_frame
+    from popvol.walk import ORDINATES18
+    e = np.asarray(ORDINATES18, np.float64)
+    e = e / np.linalg.norm(e, axis=1, keepdims=True)
+    return np.ascontiguousarray(e @ light_frame(d))
 
 
 def blocks_centre(c: int, b: int, n: int) -> np.ndarray:
@@ -486,7 +542,20 @@ def model_sources(t, g, d, wo):
     one_d = phi * f_hg(mu_d, np.clip(g * A, -gm, gm))
     w1, a1, w2, a2 = two_point(A, B)
     two_d = phi * (w1 * f_hg(mu_d, np.clip(g * a1, -gm, gm)) + w2 * f_hg(mu_d, np.clip(g * a2, -gm, gm)))
-    return one_f, one_d, two_d
+    # the fluence in each ordinate's cell of the sphere, as a lobe HG(k) about that ordinate: a
+    # lobe HG(k) about e scatters toward w_o as f_hg(e . w_o; g k)
+    E = ordinates_world(d)
+    kernels = []
+    for k in KERNELS:
+        s = np.zeros_like(phi)
+        for o in range(18):
+            s += t[ORD + o] * f_hg(np.einsum("i,i...->...", E[o], wo), g * k)
+        kernels.append(s)
+    return (one_f, one_d, two_d, *kernels)
+
+
+#: the anisotropies k of the eighteen-ordinate models (``model_sources``)
+KERNELS = (0.0, 0.3, 0.5, 0.7, 0.85)
 
 
 def popvol_fields(sol, scene):
@@ -525,7 +594,7 @@ def popvol_fields(sol, scene):
 
 # ----------------------------------------------------------------------------- the study
 def study(angle: int | Path, resolutions, n_photons: int, b: int, batches: int, seed: int, solver: str = "sweep") -> None:
-    scene = popvol.load_scene(str(scene_path(angle)), resolution=resolutions[0], solver=solver)
+    scene = load(angle, resolutions[0], solver)
     m = scene.medium
     rho = np.ascontiguousarray(m.density, np.float32)
     vs, corner = geometry(scene)
@@ -551,7 +620,7 @@ def study(angle: int | Path, resolutions, n_photons: int, b: int, batches: int, 
     wo_b = np.stack([cam_q[0] - X, cam_q[1] - Y, cam_q[2] - Z])
     wo_b /= np.linalg.norm(wo_b, axis=0)
     for res in resolutions:
-        scene = popvol.load_scene(str(scene_path(angle)), resolution=res, solver=solver)
+        scene = load(angle, res, solver)
         t0 = time.perf_counter()
         sol = popvol.solve(scene)
         ts = time.perf_counter() - t0
@@ -642,7 +711,8 @@ def study(angle: int | Path, resolutions, n_photons: int, b: int, batches: int, 
 
         im = image(mc_mean, one_m)
         imk = np.array([image(tal[k], ones[k]) for k in range(K)])
-        names = ["lobes", "magnitude", "1-lobe(MC F)", "1-lobe about d (MC A)", "2-lobe about d (MC A, B)"]
+        names = (["lobes", "magnitude", "1-lobe(MC F)", "1-lobe about d (MC A)", "2-lobe about d (MC A, B)"]
+                 + [f"18 ordinates, HG({k}) each" for k in KERNELS])
         tot = single + im[0]
         print(f"image estimate (sum over the view; single scattering {100 * single / tot:.1f} % of the MC's), "
               f"pop/MC, multiple only | total (single + multiple):")
