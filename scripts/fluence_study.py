@@ -27,7 +27,8 @@ domain's; the medium's voxels are the same at every resolution):
   in-scattered source toward the scene's camera, int L_s(w) f_hg(w . w_o; g) dw, w_o the unit
   vector from the block's centre to the camera, and its fluence by the eighteen-ordinate
   walk's cell of the sphere it travels in (the ordinate nearest its direction, walk.ORDINATES18
-  in the sun's domain frame, domains.light_frame).
+  in the sun's domain frame, domains.light_frame), and the fluence and first moment of the light
+  scattered once and of the light scattered twice.
   A medium whose voxels are not cubes is put on cubes as wide as their smallest side
   (``on_cubic_voxels``), for the Monte Carlo and popvol alike.
   The noise is the spread over ``--batches`` independent batches (different seeds).
@@ -65,7 +66,9 @@ lobes about d has Legendre coefficients P_l = sum(W a^l) / sum(W)); the closure
 on the bound and the other point and the weights keep the mean and variance; B - A^2 clamped
 to [0, 1 - A^2] (B < A^2 is no mixture of HG lobes about d: then one lobe); "18 ordinates,
 HG(k) each" the MC's fluence in each ordinate's cell of the sphere as a lobe HG(k) about that
-ordinate, k in ``KERNELS``. A lobe HG(a) about
+ordinate, k in ``KERNELS``. "1-lobe(MC F) per order 1, >= 2" one HG lobe about its own
+first moment for the light scattered once and one for the rest, "... per order 1, 2, >= 3" the
+same with the light scattered twice apart too (the MC's fluences and moments by order). A lobe HG(a) about
 d scatters toward w_o as f_hg(d . w_o; g a), as in kernels/render.py. Each ratio is +- the
 spread over the batches. Before it, per band: the MC's A, B, the HG lobe's B = A^2 (of the
 band's A; <A^2> the mean over the blocks, weighted as the band's sums), B<A^2% the share, so weighted,
@@ -103,8 +106,10 @@ INV_4PI = 1.0 / (4.0 * math.pi)
 # tally rows
 PHI, FX, FY, FZ, SCAM, UNSC, P2D = range(7)
 ORD = 7                          # then 18 rows: the scattered fluence by the ordinate it lies nearest
-NTAL = ORD + 18
-CACHE_TAG = "v3"                 # bump when the tallies change (v2: + P2D, v3: + ORD)
+ONCE = ORD + 18                  # then 4 rows: the fluence and first moment of the light scattered once,
+TWICE = ONCE + 4                 # and 4 of the light scattered twice
+NTAL = TWICE + 4
+CACHE_TAG = "v5"                 # bump when the tallies change (v2: + P2D, v3: + ORD, v4: + ONCE, v5: + TWICE)
 
 
 # ----------------------------------------------------------------------------- Monte Carlo
@@ -193,6 +198,12 @@ def _tally(tal, wo, d, E, b, nc, px, py, pz, ux, uy, uz, L, w, scattered, g):
                 c = ux * d[0] + uy * d[1] + uz * d[2]
                 tal[P2D, ix, iy, iz] += wl * (1.5 * c * c - 0.5)
                 tal[ORD + o_near, ix, iy, iz] += wl
+                if scattered <= 2:
+                    r = ONCE if scattered == 1 else TWICE
+                    tal[r, ix, iy, iz] += wl
+                    tal[r + 1, ix, iy, iz] += wl * ux
+                    tal[r + 2, ix, iy, iz] += wl * uy
+                    tal[r + 3, ix, iy, iz] += wl * uz
             else:
                 tal[UNSC, ix, iy, iz] += wl
         t = tn
@@ -261,7 +272,7 @@ def _mc(rho, sig_vox, albedo, g, d, E, e1, e2, centre, half1, half2, b, wo, n_ph
         py += t0 * uy
         pz += t0 * uz
         w = 1.0
-        scattered = False
+        scattered = 0              # real collisions so far
         while True:
             s = -math.log(1.0 - np.random.random()) / maj
             te = max(_to_box_exit(px, py, pz, ux, uy, uz, nq, 1e300), 0.0)
@@ -283,7 +294,7 @@ def _mc(rho, sig_vox, albedo, g, d, E, e1, e2, centre, half1, half2, b, wo, n_ph
                     else:
                         break
                 ux, uy, uz = _scatter(ux, uy, uz, g)
-                scattered = True
+                scattered += 1
     return n_real, n_tent
 
 
@@ -551,7 +562,17 @@ def model_sources(t, g, d, wo):
         for o in range(18):
             s += t[ORD + o] * f_hg(np.einsum("i,i...->...", E[o], wo), g * k)
         kernels.append(s)
-    return (one_f, one_d, two_d, *kernels)
+    # the light scattered once (twice) and the rest, each one HG lobe about its own first moment
+    phi1, F1 = t[ONCE], t[ONCE + 1:ONCE + 4]
+    phi2, F2 = t[TWICE], t[TWICE + 1:TWICE + 4]
+
+    def lobe(ph, Fk):
+        fk = np.linalg.norm(Fk, axis=0)
+        mu = (Fk * wo).sum(0) / np.maximum(fk, 1e-30)
+        return np.maximum(ph, 0.0) * f_hg(mu, np.clip(g * np.minimum(fk / np.maximum(ph, 1e-30), 1.0), -gm, gm))
+    by_order = lobe(phi1, F1) + lobe(phi - phi1, F - F1)
+    by_order3 = lobe(phi1, F1) + lobe(phi2, F2) + lobe(phi - phi1 - phi2, F - F1 - F2)
+    return (one_f, one_d, two_d, *kernels, by_order, by_order3)
 
 
 #: the anisotropies k of the eighteen-ordinate models (``model_sources``)
@@ -712,7 +733,7 @@ def study(angle: int | Path, resolutions, n_photons: int, b: int, batches: int, 
         im = image(mc_mean, one_m)
         imk = np.array([image(tal[k], ones[k]) for k in range(K)])
         names = (["lobes", "magnitude", "1-lobe(MC F)", "1-lobe about d (MC A)", "2-lobe about d (MC A, B)"]
-                 + [f"18 ordinates, HG({k}) each" for k in KERNELS])
+                 + [f"18 ordinates, HG({k}) each" for k in KERNELS] + ["1-lobe(MC F) per order 1, >= 2", "1-lobe(MC F) per order 1, 2, >= 3"])
         tot = single + im[0]
         print(f"image estimate (sum over the view; single scattering {100 * single / tot:.1f} % of the MC's), "
               f"pop/MC, multiple only | total (single + multiple):")
