@@ -189,18 +189,22 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
             er *= thc
             if pending[k2, i2] == 0:     # written once a sweep: the other group reads this line
                 pending[k2, i2] = 1
-        # the lobe's 18 shares and moments, each a contiguous row of the table: the loops
-        # vectorise
-        for n in range(M18):
-            scratch[g, 40 + n] = table[o, t, 0, n] + lam * (table[o, t + 1, 0, n] - table[o, t, 0, n])
-            scratch[g, 60 + n] = table[o, t, 1, n] + lam * (table[o, t + 1, 1, n] - table[o, t, 1, n])
-        for n in range(M18):
-            scratch[g, n] += es * scratch[g, 40 + n]
-            scratch[g, M18 + n] += es * scratch[g, 60 + n]
+        # the lobe's 18 shares and moments, each a contiguous row of the table (the loops
+        # vectorise), added where they go in one pass
         if c2 >= 0:
             for n in range(M18):
-                W[c2, n] += er * scratch[g, 40 + n]
-                Wa[c2, n] += er * scratch[g, 60 + n]
+                share = table[o, t, 0, n] + lam * (table[o, t + 1, 0, n] - table[o, t, 0, n])
+                moment = table[o, t, 1, n] + lam * (table[o, t + 1, 1, n] - table[o, t, 1, n])
+                scratch[g, n] += es * share
+                scratch[g, M18 + n] += es * moment
+                W[c2, n] += er * share
+                Wa[c2, n] += er * moment
+        else:
+            for n in range(M18):
+                share = table[o, t, 0, n] + lam * (table[o, t + 1, 0, n] - table[o, t, 0, n])
+                moment = table[o, t, 1, n] + lam * (table[o, t + 1, 1, n] - table[o, t, 1, n])
+                scratch[g, n] += es * share
+                scratch[g, M18 + n] += es * moment
     if sending:
         # what leaves for each neighbour, after the neighbour's half step
         for n in range(M18):
