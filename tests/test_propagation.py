@@ -350,6 +350,25 @@ def test_cell_factor_kernels_equal_numpy_twins(decay, rng):
     np.testing.assert_allclose(direct_fluence(sigma_t, h), ref.direct_fluence(sigma_t, h), rtol=1e-6, atol=1e-30)
 
 
+def test_edge_factors_equal_numpy_power(rng):
+    """kernels.cells.edge_factors (walk.edge_factors), a half step's factors over an edge of the
+    lattice, T ** sqrt 2: bit for bit np.power on random factors in (0, 1], on exact 1s (cells
+    without medium) and 0s, and T ** sqrt 2 = exp(-sqrt 2 c) of a factor T = exp(-c) (a path
+    sqrt 2 times as long)."""
+    from popvol.walk import edge_factors
+    e = np.float32(np.sqrt(2.0))
+    x = rng.random((6, 5, 7)).astype(np.float32)
+    x[x < 0.3] = 1.0
+    x[0, 0, :3] = 0.0
+    got = edge_factors(x, e)
+    assert got.dtype == np.float32 and got.shape == x.shape
+    np.testing.assert_array_equal(got, np.power(x, e))
+    assert (got[x == 1.0] == 1.0).all() and (got[0, 0, :3] == 0.0).all()
+    c = np.linspace(0.0, 5.0, 11)
+    np.testing.assert_allclose(edge_factors(np.exp(-c).astype(np.float32), e), np.exp(-np.sqrt(2.0) * c),
+                               rtol=1e-5, atol=1e-30)
+
+
 def test_hand_over_pending_kernel_equals_numpy_twin(rng):
     """kernels.cells.hand_over_pending (walk.hand_over_pending) against its twin: the same Q, W
     and Wa bit for bit (the same float64 products, rounded once), the absorbed power to

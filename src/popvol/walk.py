@@ -605,6 +605,14 @@ def walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target
     return it, in_flight, absorbed, sent
 
 
+def edge_factors(x: np.ndarray, e: np.float32) -> np.ndarray:
+    """float32, x's shape: x ** e (kernels/cells.py, :func:`~popvol.kernels.cells.edge_factors`)."""
+    x = np.ascontiguousarray(x, np.float32)
+    out = np.empty_like(x)
+    KC.edge_factors(x, np.float32(e), out)
+    return out
+
+
 def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
                      skip=None, source=None) -> tuple[int, float, float, int]:
     """The eighteen-ordinate walk (kernels/ordinates18.py) of :func:`walk_box`: as
@@ -642,7 +650,7 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     cell[kept] = np.arange(m, dtype=np.int32)
     table = ordinate18_table()
     root2 = np.float32(np.sqrt(2.0))
-    Th2, Dh2, Sh2 = (np.power(x, root2).astype(np.float32) for x in (Th, Dh, Sh))
+    Th2, Dh2, Sh2 = (edge_factors(x, root2) for x in (Th, Dh, Sh))
     W = np.zeros((m, 18), np.float32)
     Wa = np.zeros_like(W)
     landing = np.full((m, 18), KO18.UNKNOWN, np.int32)

@@ -10,6 +10,8 @@ expressions they replace made five to ten domain-sized float64 temporaries each)
 - :func:`handover_factor`: the share of a lobe's first moment a cell removes (docs/METHOD.md,
   "Hand-over", Eq. 17);
 - :func:`direct_fluence`: the unscattered light of a sun at the cell centres (Eq. 22);
+- :func:`edge_factors`: a half step's factors over an edge of the cube lattice, sqrt 2 cells
+  long (the eighteen-ordinate walk, kernels/ordinates18.py);
 - :func:`hand_over_pending`: the packets still pending in the diffusion region when the walk
   stops go to the diffusion stage;
 - :func:`face_neighbour`, :func:`cell_along`: the cell across one of a cell's six faces (the
@@ -18,7 +20,7 @@ expressions they replace made five to ten domain-sized float64 temporaries each)
 - :func:`skip_runs`: those runs.
 
 The arithmetic is float64, the arrays float32. NumPy twins: tests/twins.py (medium_factors,
-handover_factor, direct_fluence, hand_over_pending).
+handover_factor, direct_fluence, hand_over_pending); :func:`edge_factors`'s is ``np.power``.
 """
 import math
 
@@ -115,6 +117,19 @@ def direct_fluence(sigma_t, h, out):
                 c = cum[j] + half
                 out[k, i, j] = math.exp(-(2.0 * c - half))
                 cum[j] = c
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def edge_factors(x, e, out):
+    """out = x ** e elementwise, float32 (any shape, C-ordered, as ``x``), e float32: a
+    half step's factor over a path e times as long (T^e, with T = exp(-c h / 2)); where x is 1
+    (a cell without medium, most of a domain) so is out, without the power. The same bits as
+    ``np.power(x, e)``."""
+    xf = x.ravel()
+    of = out.ravel()
+    for i in nb.prange(xf.size):
+        v = xf[i]
+        of[i] = v if v == 1.0 else v ** e
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
