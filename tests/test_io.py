@@ -194,6 +194,18 @@ def test_npz_defaults_and_scalar_voxel(tmp_path, rng):
     np.testing.assert_array_equal(v2.origin, [1, 2, 3])
 
 
+def test_npz_origin_is_the_centre_of_the_first_voxel(tmp_path):
+    """An .npz may name the centre of voxel (0, 0, 0) ``origin`` (the scene's word) as well as
+    ``world_of_ijk_min``; with both, where they agree, the medium lies where either says."""
+    d = np.ones((2, 3, 4), np.float32)
+    for i, extra in enumerate(({"origin": [1.0, -2.0, 3.0]},
+                               {"origin": [1.0, -2.0, 3.0], "world_of_ijk_min": [1.0, -2.0, 3.0]})):
+        p = tmp_path / f"o{i}.npz"
+        np.savez(p, density=d, voxel_size=0.5, **extra)
+        v = read_volume(p)
+        np.testing.assert_array_equal(v.origin, [1.0, -2.0, 3.0])
+
+
 # -- bad input: one PopvolError naming the file ------------------------------------------------------
 
 def _raises_naming(path, fn, *args, match=None):
@@ -272,7 +284,8 @@ def test_npz_with_bad_array(tmp_path, arr):
 
 @pytest.mark.parametrize("extra", [{"voxel_size": [0.0, 1.0, 1.0]}, {"voxel_size": [-1.0]},
                                    {"voxel_size": [1.0, 2.0]}, {"voxel_size": [np.nan] * 3},
-                                   {"world_of_ijk_min": [0.0, np.inf, 0.0]}])
+                                   {"world_of_ijk_min": [0.0, np.inf, 0.0]}, {"origin": [1.0, 2.0]},
+                                   {"origin": [0.0, 0.0, 1.0], "world_of_ijk_min": [0.0, 0.0, 2.0]}])
 def test_npz_with_bad_geometry(tmp_path, extra):
     p = tmp_path / "geom.npz"
     np.savez(p, density=np.ones((2, 2, 2), np.float32), **extra)

@@ -67,18 +67,23 @@ def _vec3(value, source: str, field: str, default: float) -> np.ndarray:
 
 def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
     """Dense grid from .npz: array ``grid`` (default ``density``), optional ``voxel_size``
-    (1 or 3 values) and ``world_of_ijk_min`` (centre of voxel (0, 0, 0)); defaults 1 and 0."""
+    (1 or 3 values) and ``world_of_ijk_min`` or ``origin`` (centre of voxel (0, 0, 0), the
+    scene's ``[medium] origin``; both only where they agree); defaults 1 and 0."""
     path = Path(path)
     key = grid or "density"
     with _npz_member(path, key) as z:
         density = z[key]
         voxel = z["voxel_size"] if "voxel_size" in z.files else None
-        origin = z["world_of_ijk_min"] if "world_of_ijk_min" in z.files else None
+        centres = {k: _vec3(z[k], str(path), k, 0.0) for k in ("world_of_ijk_min", "origin") if k in z.files}
+    if len(centres) == 2 and not np.allclose(*centres.values(), rtol=1e-6, atol=0.0):
+        a, b = (v.tolist() for v in centres.values())
+        raise PopvolError(f"{path}: world_of_ijk_min = {a} and origin = {b} disagree; keep one "
+                          "(the centre of voxel (0, 0, 0))")
     voxel = _vec3(voxel, str(path), "voxel_size", 1.0)
     if np.any(voxel <= 0):
         raise PopvolError(f"{path}: voxel_size = {voxel.tolist()} must be > 0")
-    return VolumeData(validate_density(density, str(path), key, signed), voxel,
-                      _vec3(origin, str(path), "world_of_ijk_min", 0.0), str(path))
+    origin = next(iter(centres.values()), np.zeros(3))
+    return VolumeData(validate_density(density, str(path), key, signed), voxel, origin, str(path))
 
 
 #: Bytes per voxel of a grid while it is read and checked: the file's array, its float32 copy
