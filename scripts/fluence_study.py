@@ -534,6 +534,15 @@ def two_point(A, B):
     return w1, a1, 1.0 - w1, a2
 
 
+def hg_lobe(phi, F, g, wo):
+    """The source toward the camera of light of fluence ``phi`` and first moment ``F`` (3, ...)
+    as one HG lobe about F / |F| with mean cosine |F| / phi: phi f_hg(w_o . F / |F|; g |F| / phi)."""
+    fk = np.linalg.norm(F, axis=0)
+    mu = (F * wo).sum(0) / np.maximum(fk, 1e-30)
+    gm = 0.9999
+    return np.maximum(phi, 0.0) * f_hg(mu, np.clip(g * np.minimum(fk / np.maximum(phi, 1e-30), 1.0), -gm, gm))
+
+
 def model_sources(t, g, d, wo):
     """From MC tallies t (NTAL, cx, cy, cz): the source toward the camera (int L f_hg(w . w_o))
     of one HG lobe about the MC's own first moment F/|F|, of one HG lobe about d with A = F.d/phi,
@@ -566,12 +575,8 @@ def model_sources(t, g, d, wo):
     phi1, F1 = t[ONCE], t[ONCE + 1:ONCE + 4]
     phi2, F2 = t[TWICE], t[TWICE + 1:TWICE + 4]
 
-    def lobe(ph, Fk):
-        fk = np.linalg.norm(Fk, axis=0)
-        mu = (Fk * wo).sum(0) / np.maximum(fk, 1e-30)
-        return np.maximum(ph, 0.0) * f_hg(mu, np.clip(g * np.minimum(fk / np.maximum(ph, 1e-30), 1.0), -gm, gm))
-    by_order = lobe(phi1, F1) + lobe(phi - phi1, F - F1)
-    by_order3 = lobe(phi1, F1) + lobe(phi2, F2) + lobe(phi - phi1 - phi2, F - F1 - F2)
+    by_order = hg_lobe(phi1, F1, g, wo) + hg_lobe(phi - phi1, F - F1, g, wo)
+    by_order3 = hg_lobe(phi1, F1, g, wo) + hg_lobe(phi2, F2, g, wo) + hg_lobe(phi - phi1 - phi2, F - F1 - F2, g, wo)
     return (one_f, one_d, two_d, *kernels, by_order, by_order3)
 
 
@@ -728,12 +733,16 @@ def study(angle: int | Path, resolutions, n_photons: int, b: int, batches: int, 
             ph = np.maximum(tk[PHI], 1e-30)
             ms_mc = (Wb * tk[SCAM][sel]).sum()
             ms_mag = (Wb * (P["scat"] * tk[SCAM] / ph)[sel]).sum()
-            return np.array([ms_mc, ms_pop, ms_mag] + [(Wb * x[sel]).sum() for x in models])
+            # popvol's scattered light less the MC's once-scattered light, each one lobe
+            phi1, F1 = tk[ONCE], tk[ONCE + 1:ONCE + 4]
+            hyb = (hg_lobe(phi1, F1, g, wo_b) + hg_lobe(np.maximum(P["scat"] - phi1, 0.0), P["F"] - F1, g, wo_b))
+            return np.array([ms_mc, ms_pop, ms_mag] + [(Wb * x[sel]).sum() for x in models] + [(Wb * hyb[sel]).sum()])
 
         im = image(mc_mean, one_m)
         imk = np.array([image(tal[k], ones[k]) for k in range(K)])
         names = (["lobes", "magnitude", "1-lobe(MC F)", "1-lobe about d (MC A)", "2-lobe about d (MC A, B)"]
-                 + [f"18 ordinates, HG({k}) each" for k in KERNELS] + ["1-lobe(MC F) per order 1, >= 2", "1-lobe(MC F) per order 1, 2, >= 3"])
+                 + [f"18 ordinates, HG({k}) each" for k in KERNELS] + ["1-lobe(MC F) per order 1, >= 2", "1-lobe(MC F) per order 1, 2, >= 3",
+                    "popvol's lobe less the MC's order 1, + its lobe"])
         tot = single + im[0]
         print(f"image estimate (sum over the view; single scattering {100 * single / tot:.1f} % of the MC's), "
               f"pop/MC, multiple only | total (single + multiple):")
