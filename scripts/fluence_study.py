@@ -68,8 +68,10 @@ to [0, 1 - A^2] (B < A^2 is no mixture of HG lobes about d: then one lobe); "18 
 HG(k) each" the MC's fluence in each ordinate's cell of the sphere as a lobe HG(k) about that
 ordinate, k in ``KERNELS``. "1-lobe(MC F) per order 1, >= 2" one HG lobe about its own
 first moment for the light scattered once and one for the rest, "... per order 1, 2, >= 3" the
-same with the light scattered twice apart too (the MC's fluences and moments by order). A lobe HG(a) about
-d scatters toward w_o as f_hg(d . w_o; g a), as in kernels/render.py. Each ratio is +- the
+same with the light scattered twice apart too (the MC's fluences and moments by order),
+"popvol's lobe less the MC's order 1, + its lobe" popvol's scattered fluence and moment less the
+MC's once-scattered light's as one lobe, plus that light's own. A lobe HG(a) about d scatters
+toward w_o as f_hg(d . w_o; g a), as in kernels/render.py. Each ratio is +- the
 spread over the batches. Before it, per band: the MC's A, B, the HG lobe's B = A^2 (of the
 band's A; <A^2> the mean over the blocks, weighted as the band's sums), B<A^2% the share, so weighted,
 of blocks with B < A^2, the three models' source toward the camera / the MC's (density-weighted,
