@@ -117,18 +117,22 @@ def main() -> None:
 
 
 def halved(medium):
-    """``medium`` on voxels half as wide over the same box, its density trilinear (clamped to the
-    edge) at the new centres, sampled as a light domain samples it (kernels.sampling.resample, an
-    unrotated domain of cubic cells: the medium's voxels must be cubes)."""
+    """``medium`` on cubes half as wide as its voxels' smallest side, over the same box (each
+    side a whole number of them), its density sampled at their centres as a light domain
+    samples it (kernels.sampling.resample, an unrotated domain of cubic cells: trilinear,
+    clamped to the edge in the outer half voxel)."""
     voxel = np.asarray(medium.voxel_size, np.float64)
-    if not np.allclose(voxel, voxel[0]):
-        raise SystemExit(f"--halve-voxels: {medium.source} has voxels of {voxel.tolist()}, not cubes")
+    cell = float(voxel.min()) / 2
+    ratio = voxel / cell
+    if not np.allclose(ratio, np.round(ratio), rtol=1e-6):
+        raise SystemExit(f"--halve-voxels: {medium.source} has voxels of {voxel.tolist()}, "
+                         "not whole multiples of their smallest side")
     lo = medium.origin - voxel / 2                   # the corner of the medium's box
-    shape = tuple(2 * n for n in medium.density.shape)
+    shape = tuple(int(n * r) for n, r in zip(medium.density.shape, np.round(ratio).astype(int)))
     density = np.empty(shape, np.float32)
     resample(np.ascontiguousarray(medium.density, np.float32), 1.0 / voxel, np.asarray(medium.origin, np.float64),
-             np.eye(3), lo, float(voxel[0]) / 2, shape, True, density)
-    return dataclasses.replace(medium, density=density, voxel_size=voxel / 2, origin=lo + voxel / 4)
+             np.eye(3), lo, cell, shape, True, density)
+    return dataclasses.replace(medium, density=density, voxel_size=np.full(3, cell), origin=lo + cell / 2)
 
 
 def print_orders(scene_path, w, h, method, masks, levels, var, gathered, halve: bool = False) -> None:
