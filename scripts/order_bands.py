@@ -29,8 +29,9 @@ they are measured on, a few thousand spp of a dense cloud let its fireflies fill
 tenth (the WDAS cloud at density x10 and 128 spp in 8 passes: its orders >= 3 there x0.57 ranked on itself,
 x1.12 ranked on one half). ``--resolution 64,128,256`` repeats popvol's columns at each light-domain
 resolution (default: the scene's), so that convergence shows. ``--halve-voxels`` solves and
-renders the scene's medium on voxels half as wide (its density trilinear at their centres, the
-same box), so that the gather, which never takes blocks finer than the voxels, is refined too.
+renders the scene's medium on cubes half as wide as its voxels' smallest side (its density
+trilinear at their centres, the same box), so that the gather, which never takes blocks finer
+than the voxels, and the march's interpolation between voxel centres are refined too.
 """
 from __future__ import annotations
 
@@ -70,7 +71,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "build" / "orders"))
     ap.add_argument("--gather", type=int, default=None, help="method.gather (default: the scene's)")
     ap.add_argument("--gather-resolution", type=int, default=None, help="method.gather_resolution")
-    ap.add_argument("--halve-voxels", action="store_true", help="the medium on voxels half as wide")
+    ap.add_argument("--halve-voxels", action="store_true", help="the medium on cubes half as wide as its voxels' smallest side")
     ap.add_argument("--resolution", default=None, help="popvol's light-domain resolutions, comma-separated "
                     "(default: the scene's)")
     args = ap.parse_args()
