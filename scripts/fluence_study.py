@@ -97,11 +97,11 @@ import numba as nb
 import numpy as np
 
 import popvol
-from popvol.kernels.sampling import resample
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 from montecarlo import _scatter            # noqa: E402  (HG sampling, the tests' oracle's)
+from order_bands import on_cubes           # noqa: E402  (scripts/, beside this one)
 CACHE = Path(tempfile.gettempdir()) / "popvol_fluence_study"
 BANDS = [(0.0, 0.5), (0.5, 2.0), (2.0, 5.0), (5.0, 10.0), (10.0, math.inf)]
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -385,25 +385,16 @@ def load(angle: int | Path, resolution: int, solver: str):
 
 def on_cubic_voxels(medium):
     """``medium`` itself where its voxels are cubes; else the same box on cubes as wide as its
-    smallest side (each side a whole number of them), the density sampled at their centres as
-    a light domain samples it (kernels.sampling.resample: trilinear, clamped to the edge in the
-    outer half voxel). The Monte Carlo and popvol then both see that medium, which differs
-    from the scene's where the density is not linear across a voxel."""
+    smallest side (order_bands.on_cubes: the density sampled at their centres as a light domain
+    samples it). The Monte Carlo and popvol then both see that medium, which differs from the
+    scene's where the density is not linear across a voxel."""
     voxel = np.asarray(medium.voxel_size, np.float64)
-    cell = float(voxel.min())
-    ratio = voxel / cell
-    if np.allclose(ratio, 1.0, rtol=1e-6):
+    if np.allclose(voxel, voxel.min(), rtol=1e-6):
         return medium
-    if not np.allclose(ratio, np.round(ratio), rtol=1e-6):
-        raise SystemExit(f"fluence_study: voxels of {voxel.tolist()} are not whole multiples of their smallest side")
-    lo = np.asarray(medium.origin, np.float64) - voxel / 2          # the corner of the medium's box
-    shape = tuple(int(n * r) for n, r in zip(medium.density.shape, np.round(ratio).astype(int)))
-    density = np.empty(shape, np.float32)
-    resample(np.ascontiguousarray(medium.density, np.float32), 1.0 / voxel, np.asarray(medium.origin, np.float64),
-             np.eye(3), lo, cell, shape, True, density)
+    cubes = on_cubes(medium, float(voxel.min()), "fluence_study")
     print(f"fluence_study: the medium's {medium.density.shape} voxels of {voxel.tolist()} resampled to "
-          f"{shape} cubes of {cell:g}")
-    return dataclasses.replace(medium, density=density, voxel_size=np.full(3, cell), origin=lo + cell / 2)
+          f"{cubes.density.shape} cubes of {voxel.min():g}")
+    return cubes
 
 
 def scene_key(scene) -> str:
@@ -554,10 +545,8 @@ def model_sources(t, g, d, wo):
     phi = t[PHI]
     phim = np.maximum(phi, 1e-30)
     F = t[FX:FZ + 1]
-    fn = np.linalg.norm(F, axis=0)
     gm = 0.9999
-    mu_f = (F * wo).sum(0) / np.maximum(fn, 1e-30)
-    one_f = phi * f_hg(mu_f, np.clip(g * np.minimum(fn / phim, 1.0), -gm, gm))
+    one_f = hg_lobe(phi, F, g, wo)
     A = np.clip(np.einsum("i,i...->...", d, F) / phim, -1.0, 1.0)
     B = t[P2D] / phim
     mu_d = np.einsum("i,i...->...", d, wo)

@@ -118,16 +118,20 @@ def main() -> None:
 
 
 def halved(medium):
-    """``medium`` on cubes half as wide as its voxels' smallest side, over the same box (each
-    side a whole number of them), its density sampled at their centres as a light domain
-    samples it (kernels.sampling.resample, an unrotated domain of cubic cells: trilinear,
+    """``medium`` on cubes half as wide as its voxels' smallest side (:func:`on_cubes`)."""
+    return on_cubes(medium, float(np.min(medium.voxel_size)) / 2, "--halve-voxels")
+
+
+def on_cubes(medium, cell: float, what: str):
+    """``medium`` on cubes of side ``cell`` over the same box (each voxel side a whole number of
+    them, else SystemExit naming ``what``), its density sampled at their centres as a light
+    domain samples it (kernels.sampling.resample, an unrotated domain of cubic cells: trilinear,
     clamped to the edge in the outer half voxel)."""
     voxel = np.asarray(medium.voxel_size, np.float64)
-    cell = float(voxel.min()) / 2
     ratio = voxel / cell
     if not np.allclose(ratio, np.round(ratio), rtol=1e-6):
-        raise SystemExit(f"--halve-voxels: {medium.source} has voxels of {voxel.tolist()}, "
-                         "not whole multiples of their smallest side")
+        raise SystemExit(f"{what}: {medium.source} has voxels of {voxel.tolist()}, "
+                         f"not whole multiples of {cell:g}")
     lo = medium.origin - voxel / 2                   # the corner of the medium's box
     shape = tuple(int(n * r) for n, r in zip(medium.density.shape, np.round(ratio).astype(int)))
     density = np.empty(shape, np.float32)
@@ -153,7 +157,7 @@ def print_orders(scene_path, w, h, method, masks, levels, var, gathered, halve: 
         walk_scene = dataclasses.replace(walk_scene, medium=scene.medium)
     walk_whole = popvol.render(walk_scene, popvol.solve(walk_scene))
 
-    print(f"\npopvol at {scene.method.resolution} cells" + (" on voxels half as wide:" if halve else ":"))
+    print(f"\npopvol at {scene.method.resolution} cells" + (" on cubes half as wide as the voxels' smallest side:" if halve else ":"))
     columns = ["order 1", "order 2", "orders >= 3"] if gathered else ["order 1"]
     print(f"{'band':8s} " + " ".join(f"{'order ' + o:>10s}" for o in ORDER_BANDS)
           + "".join(f" {'popvol / ' + c:>27s}" for c in columns + ["orders >= 2"]) + f" {'walk alone':>10s}")
