@@ -314,8 +314,8 @@ def test_cli_offers_the_cli_knobs_and_no_experimental_ones():
     from click.testing import CliRunner
     from popvol.cli import cli
     from popvol.method import KNOBS, cli_knobs
-    assert {k.name for k in cli_knobs("render")} == {"resolution", "spp", "gather", "exposure", "tone"}
-    assert {k.name for k in cli_knobs("compare")} == {"resolution", "spp", "gather"}
+    assert {k.name for k in cli_knobs("render")} == {"resolution", "spp", "gather", "voxel_depth", "exposure", "tone"}
+    assert {k.name for k in cli_knobs("compare")} == {"resolution", "spp", "gather", "voxel_depth"}
     runner = CliRunner()
     for command in ("render", "compare"):
         text = runner.invoke(cli, [command, "--help"]).output

@@ -46,6 +46,9 @@ MAX_OPTICAL_DEPTH = 1e7
 #: reflection depends on its albedo and g, not on its density, and a cell's fields are its mean,
 #: which over a voxel many mean free paths deep is far below the light at its lit face.
 MAX_TRANSPORT_DEPTH = 2.0
+#: Most parts one voxel side is cut into at method.voxel_depth (Medium.refinement): 64 times the
+#: voxels at most.
+MAX_REFINEMENT = 4
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
@@ -167,6 +170,45 @@ class Medium:
         with np.errstate(over="ignore"):
             return float(self.scale.max() * float(self.density.max()) * float(self.voxel_size.min()))
 
+    def refinement(self, voxel_depth: float) -> tuple[int, int, int]:
+        """How many parts each voxel side is cut into so that no voxel is more than
+        ``voxel_depth`` mean free paths across any side: ceil(sigma_t,max h_a / voxel_depth) per
+        axis a (sigma_t,max of the densest voxel and channel), at most MAX_REFINEMENT; (1, 1, 1)
+        for voxel_depth 0 (method.voxel_depth: off)."""
+        if not voxel_depth:
+            return (1, 1, 1)
+        with np.errstate(over="ignore"):
+            sigma_max = float(self.scale.max()) * float(self.density.max())
+        return tuple(int(min(MAX_REFINEMENT, max(1, np.ceil(sigma_max * h / voxel_depth - 1e-9))))
+                     for h in self.voxel_size)
+
+    def refined(self, voxel_depth: float) -> "Medium":
+        """The medium light is solved and rendered on at ``method.voxel_depth`` (docs/METHOD.md,
+        "Voxels thinner than a mean free path"): each voxel cut into :meth:`refinement` parts
+        per side, the density (and a per-voxel albedo or g) trilinear at the finer voxels'
+        centres (:func:`refine_grid`), over the same box; this medium itself where no voxel is
+        thicker than ``voxel_depth`` or it is 0. Made once per density array and kept, so that
+        the solve and every render of it meet the same grid."""
+        factors = self.refinement(voxel_depth)
+        if factors == (1, 1, 1):
+            return self
+
+        def make(density):
+            from .domains import available_memory     # domains imports this module
+            shape = tuple(n * k for n, k in zip(density.shape, factors))
+            nbytes = 4 * int(np.prod(shape)) * (1 + self.albedo_per_voxel + self.g_per_voxel)
+            if nbytes > 0.8 * available_memory():
+                raise PopvolError(f"{self.source}: method.voxel_depth = {voxel_depth:g} cuts the medium's voxels into "
+                                  f"{'x'.join(map(str, factors))} parts, a {'x'.join(map(str, shape))} grid that "
+                                  f"needs about {nbytes / 2**30:.1f} GiB, but only {available_memory() / 2**30:.1f} "
+                                  "GiB of memory is available; raise method.voxel_depth (0: the medium's own voxels)")
+            voxel = self.voxel_size / np.asarray(factors)
+            lo, _ = self.bounds
+            return replace(self, density=refine_grid(density, factors), voxel_size=voxel, origin=lo + voxel / 2,
+                           albedo=refine_grid(self.albedo, factors) if self.albedo_per_voxel else self.albedo,
+                           g=refine_grid(self.g, factors) if self.g_per_voxel else self.g)
+        return self.derived(f"refined {factors}", make)
+
     def derived(self, name: str, make):
         """``make(self.density)``: a value that depends on the density alone (the voxels the
         renderer reads, the march's coarse grid), made once per density array and kept with
@@ -197,6 +239,28 @@ class Medium:
         (checked against MAX_OPTICAL_DEPTH when the medium is made)."""
         with np.errstate(over="ignore"):
             return float(self.scale.max() * float(self.density.max()) * self.diagonal)
+
+
+def refine_grid(x: np.ndarray, factors: tuple[int, int, int]) -> np.ndarray:
+    """float32 (nx kx, ny ky, nz kz): the grid ``x`` (nx, ny, nz), read trilinearly between its
+    voxel centres and clamped to the outermost ones (as the renderer reads a grid), at the
+    centres of its voxels cut into ``factors`` = (kx, ky, kz) equal parts per side. Fine voxel
+    j along an axis of n voxels cut into k has its centre at voxel coordinate (j + 1/2) / k - 1/2."""
+    out = np.asarray(x, np.float32)
+    for axis, k in enumerate(factors):
+        if k == 1:
+            continue
+        n = out.shape[axis]
+        u = np.clip((np.arange(n * k) + 0.5) / k - 0.5, 0.0, n - 1)
+        i0 = np.minimum(np.floor(u).astype(np.intp), max(n - 2, 0))
+        w = (u - i0).astype(np.float32)
+        shape = [1, 1, 1]
+        shape[axis] = n * k
+        w = w.reshape(shape)
+        a = np.take(out, i0, axis=axis)
+        b = np.take(out, np.minimum(i0 + 1, n - 1), axis=axis)
+        out = a + w * (b - a)
+    return np.ascontiguousarray(out, np.float32)
 
 
 def check_float32_range(values: np.ndarray, source: str, field: str) -> None:

@@ -271,7 +271,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     identity: a medium whose arrays were changed in place must not be solved with ``reuse``.
     ``progress``: optional callable(light index, iteration, residual).
     """
-    med = scene.medium
+    med = scene.medium.refined(scene.method.voxel_depth)     # the medium itself at voxel_depth 0
     n = len(scene.lights)
     n_ch = med.n_channels
     check_memory(3 * n * n_ch * med.density.size * 4, f"{med.source}: medium", f"fields of {n} "

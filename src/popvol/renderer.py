@@ -86,9 +86,13 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     view's combined in-scattering source (so its cost is part of rendering); ``skip``: the march
     skips what is empty (:func:`render`), else it takes every sample (the medium's occupied
     cells are then left out: NO_CELLS)."""
-    med = scene.medium
-    cam = scene.camera
     m = scene.method
+    med = scene.medium.refined(m.voxel_depth)     # the grid the solution's fields are on
+    if solution.phi.shape[2:] != med.shape:
+        raise PopvolError(f"{scene.source}: the solution's fields are on a {'x'.join(map(str, solution.phi.shape[2:]))} "
+                          f"grid, the medium at method.voxel_depth = {m.voxel_depth:g} on "
+                          f"{'x'.join(map(str, med.shape))}; solve the scene again")
+    cam = scene.camera
     lo, hi = med.bounds
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb
     albedo, albedo_rgb = ((med.albedo, np.ones(3)) if med.albedo_per_voxel

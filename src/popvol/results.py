@@ -234,7 +234,10 @@ class Solution:
                                       self.points.fields)) + kept
 
     def stats(self) -> dict:
-        return {"seconds": dict(self.seconds), "domains": [ds.stats() for ds in self.domains]}
+        """Seconds per stage, the grid the fields are on (the medium's, or at method.voxel_depth
+        its finer voxels) and each domain's figures."""
+        return {"seconds": dict(self.seconds), "grid": list(self.medium.shape),
+                "domains": [ds.stats() for ds in self.domains]}
 
 
 def _array_bytes(x) -> int:
