@@ -18,7 +18,7 @@ from pathlib import Path
 import click
 
 from .errors import PopvolError
-from .method import cli_knobs
+from .method import KNOBS, cli_knobs
 
 
 def method_options(command: str):
@@ -494,8 +494,10 @@ def view(scene, port, host, no_browser, width, height, resolution, draft_resolut
 
 
 def _method_label(method) -> str:
-    """'default method', or the experimental knobs that differ from it."""
-    changes = method.experimental_changes()
+    """'default method', or the knobs that differ from it and change the image (not
+    ``resolution``, which the title gives apart, nor the PNG's ``exposure`` and ``tone``)."""
+    changes = {k.name: getattr(method, k.name) for k in KNOBS if getattr(method, k.name) != k.default
+               and k.name not in ("resolution", "exposure", "tone")}
     return ", ".join(f"{k} = {v}" for k, v in changes.items()) if changes else "default method"
 
 
