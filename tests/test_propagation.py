@@ -352,9 +352,10 @@ def test_cell_factor_kernels_equal_numpy_twins(decay, rng):
 
 def test_edge_factors_equal_numpy_power(rng):
     """kernels.cells.edge_factors (walk.edge_factors), a half step's factors over an edge of the
-    lattice, T ** sqrt 2: bit for bit np.power on random factors in (0, 1], on exact 1s (cells
-    without medium) and 0s, and T ** sqrt 2 = exp(-sqrt 2 c) of a factor T = exp(-c) (a path
-    sqrt 2 times as long)."""
+    lattice, T ** sqrt 2: np.power on random factors in (0, 1] within one float32 ulp (the bits
+    of the C library's powf, which NumPy calls on CPUs without AVX-512; its AVX-512 loop can
+    differ by an ulp), exact on 1s (cells without medium) and 0s, and T ** sqrt 2 =
+    exp(-sqrt 2 c) of a factor T = exp(-c) (a path sqrt 2 times as long)."""
     from popvol.walk import edge_factors
     e = np.float32(np.sqrt(2.0))
     x = rng.random((6, 5, 7)).astype(np.float32)
@@ -362,7 +363,7 @@ def test_edge_factors_equal_numpy_power(rng):
     x[0, 0, :3] = 0.0
     got = edge_factors(x, e)
     assert got.dtype == np.float32 and got.shape == x.shape
-    np.testing.assert_array_equal(got, np.power(x, e))
+    np.testing.assert_array_max_ulp(got, np.power(x, e), maxulp=1)
     assert (got[x == 1.0] == 1.0).all() and (got[0, 0, :3] == 0.0).all()
     c = np.linspace(0.0, 5.0, 11)
     np.testing.assert_allclose(edge_factors(np.exp(-c).astype(np.float32), e), np.exp(-np.sqrt(2.0) * c),

@@ -123,8 +123,9 @@ def direct_fluence(sigma_t, h, out):
 def edge_factors(x, e, out):
     """out = x ** e elementwise, float32 (any shape, C-ordered, as ``x``), e float32: a
     half step's factor over a path e times as long (T^e, with T = exp(-c h / 2)); where x is 1
-    (a cell without medium, most of a domain) so is out, without the power. The same bits as
-    ``np.power(x, e)``."""
+    (a cell without medium, most of a domain) so is out, without the power. The C library's
+    powf (``np.power(x, e)``'s bits where NumPy calls it; NumPy's AVX-512 loop can differ from
+    it by one float32 ulp)."""
     xf = x.ravel()
     of = out.ravel()
     for i in nb.prange(xf.size):
