@@ -120,3 +120,22 @@ def test_finer_voxels_bring_a_thick_slab_within_the_goal_of_the_albedo_problem()
         total[voxel_depth] = centre_radiance(popvol.render(scene, popvol.solve(scene), jitter=False)) / mc["total"]
     assert total[0.7] == pytest.approx(1.0, abs=0.05)
     assert total[0.0] < 0.95                # what the finer voxels mend (measured x0.925)
+
+
+def test_render_voxel_depth_on_the_command_line_names_the_finer_grid_in_its_stats(tmp_path):
+    """``popvol render --voxel-depth`` solves on the finer grid, and ``--stats`` says which."""
+    import json
+    import subprocess
+    import sys
+    scene = tmp_path / "thick.toml"
+    scene.write_text('[medium]\ntype = "procedural"\nresolution = 12\nscale = 60.0\n\n'
+                     '[[lights]]\ntype = "directional"\ndirection = [0.3, -1.0, -0.2]\nirradiance = 1.0\n\n'
+                     '[camera]\nwidth = 24\nheight = 16\n\n[method]\nresolution = 16\n')
+    stats = tmp_path / "stats.json"
+    r = subprocess.run([sys.executable, "-m", "popvol.cli", "render", str(scene), "-o", str(tmp_path / "x.exr"),
+                        "--voxel-depth", "0.7", "--stats", str(stats)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    medium = popvol.load_scene(scene).medium
+    factors = medium.refinement(0.7)
+    assert factors != (1, 1, 1)
+    assert json.loads(stats.read_text())["grid"] == [n * k for n, k in zip(medium.shape, factors)]

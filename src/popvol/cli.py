@@ -169,7 +169,7 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
                        "raise method.max_iterations for a converged image", err=True)
     if stats:
         doc = {"scene": sc.source, "image": str(output), "width": sc.camera.width, "height": sc.camera.height,
-               "method": vars(sc.method), "seconds": seconds, "domains": info["domains"]}
+               "method": vars(sc.method), "seconds": seconds, "grid": info["grid"], "domains": info["domains"]}
         try:
             write_text_atomically(stats, json.dumps(_json_safe(doc), indent=2, allow_nan=False))
         except OSError as e:
