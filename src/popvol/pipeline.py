@@ -24,13 +24,14 @@ import numba
 import numpy as np
 
 from .diffusion import solve_diffusion, warm_guess
-from .domains import BYTES_PER_DOMAIN_CELL, available_memory, check_memory, frame_to_world, grow, small_pages
+from .domains import (BYTES_PER_DOMAIN_CELL, available_memory, check_memory, directional_domain, frame_to_world,
+                      grow, resample_medium, small_pages)
 from .errors import PopvolError
 from .kernels.render import MAX_DIFFUSE_ANISOTROPY
 from .kernels.sampling import domain_to_world
 from .lights.point import BYTES_PER_SPHERICAL_CELL
 from .results import DomainSolution, PointFields, Solution
-from .walk import replace_direct
+from .walk import direct_fluence, replace_direct
 
 
 #: one domain solved on n threads runs about PARALLEL_EFFICIENCY n times as fast as on one, for
@@ -161,6 +162,31 @@ def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
     if direct is not None:
         outs[0][...] = outs[2]
         outs[1][...] = outs[2]
+
+
+#: Most times the walk's resolution that a sun's unscattered light is computed at on its own
+#: domain (:func:`voxel_direct`).
+MAX_DIRECT_REFINEMENT = 4
+
+
+def voxel_direct(light, dom, medium, method, channel: int, needed) -> np.ndarray | None:
+    """A sun's unscattered light phi_dir (Eq. 22) on the medium's grid, float32 (nx, ny, nz),
+    set where ``needed``, from a domain of its own along the light whose cells are no wider than
+    the medium's smallest voxel (at most MAX_DIRECT_REFINEMENT times the walk's resolution):
+    Beer-Lambert through the true density there, mapped trilinearly onto the voxel centres
+    (docs/METHOD.md, "Unscattered light"). None where the walk's own cells are already that
+    fine, where ``method.direct`` is "domain", or where the light keeps no unscattered part
+    (an environment's)."""
+    h_voxel = float(np.min(medium.voxel_size))
+    if method.direct != "voxels" or not getattr(dom, "unscattered", False) or dom.h <= h_voxel * (1 + 1e-9):
+        return None
+    resolution = min(MAX_DIRECT_REFINEMENT * method.resolution, int(np.ceil(method.resolution * dom.h / h_voxel)))
+    fine = directional_domain(medium, light.direction, resolution)
+    sigma_t = resample_medium(medium, fine, channel)[0]
+    out = np.zeros(medium.shape, np.float32)
+    domain_to_world((direct_fluence(sigma_t, fine.h),), fine.frame, fine.origin, fine.h, medium.origin,
+                    medium.voxel_size, (out,), needed)
+    return out
 
 
 def transport_direct(solution: Solution) -> np.ndarray | None:
@@ -334,9 +360,12 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
             ds.warm_note = note
         ds.light_index = i
         t0 = time.perf_counter()
+        fine = voxel_direct(light, ds.domain, med, scene.method, ch, needed)
         if ds.result.flux is not None:
             ordinate_fields(ds.result, ds.domain, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]),
                             phid[i, ch], flux[i, ch])
+            if fine is not None:        # the unscattered lobe: phi = phia = phi_dir
+                phi[i, ch], phia[i, ch], direct[i, ch] = fine, fine, fine
             lobe_cap[i] = 1.0
             return ds, time.perf_counter() - t0
         if ds.result.scattered is not None:
@@ -354,11 +383,16 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
         if grid is ds.domain and d.h == ds.domain.h and d.phi.shape == tuple(ds.domain.shape):
             # the diffusion stage ran on the walk's own cells: one pass maps both
             ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]), diffuse)
-            return ds, time.perf_counter() - t0
-        ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
-        if diffuse:
-            fields, outs = zip(*diffuse)
-            domain_to_world(fields, grid.frame, grid.origin, d.h, med.origin, med.voxel_size, outs, needed)
+        else:
+            ds.domain.world_fields(ds.result, med, needed, (phi[i, ch], phia[i, ch], direct[i, ch]))
+            if diffuse:
+                fields, outs = zip(*diffuse)
+                domain_to_world(fields, grid.frame, grid.origin, d.h, med.origin, med.voxel_size, outs, needed)
+        if fine is not None:            # the scattered rest kept, its unscattered part swapped
+            change = fine - direct[i, ch]
+            phi[i, ch] += change
+            phia[i, ch] += change
+            direct[i, ch] = fine
         return ds, time.perf_counter() - t0
 
     # stage seconds are summed over the domains: solved side by side, they overlap
