@@ -150,11 +150,11 @@ KNOBS: tuple[Knob, ...] = (
          "(`popvol/diffusion.py`), or it keeps walking cell by cell (the papers' POP); see the "
          "README on bias. For point lights and the one-lobe solvers: a sun or an environment's light "
          "walked with `solver = \"ordinates\"` (the default) always walks.", experimental=True),
-    Knob("direct", "voxels", ("voxels", "domain"), "Where a sun's unscattered light is computed.",
-         "\"voxels\": on a domain of its own whose cells are no wider than the medium's smallest voxel "
-         "(at most 4 times `resolution`), Beer-Lambert through the true density, so that shadows and lit "
-         "faces are as sharp as the voxels; \"domain\": on the walk's own cells (docs/METHOD.md, "
-         "\"Unscattered light\").", experimental=True),
+    Knob("direct", "domain", ("domain", "voxels"), "Where a sun's unscattered light is computed.",
+         "\"domain\": on the walk's own cells; \"voxels\": on a domain of its own whose cells are no "
+         "wider than the medium's smallest voxel (at most 4 times `resolution`), Beer-Lambert through the "
+         "true density, so that shadows and lit faces are as sharp as the voxels where the walk's cells "
+         "are wider (docs/METHOD.md, \"Unscattered light\").", experimental=True),
     Knob("handover_scale", 2.0, (0.0, 100.0), "Hand-over threshold of the diffusion stage.",
          "With `isotropic = \"diffusion\"` (point lights, and suns with a one-lobe `solver`): a "
          "packet leaves the walk when its anisotropy "
