@@ -6,7 +6,7 @@
 popvol's ``phi_dir`` on the medium's grid is the sun's unscattered light computed on its light
 domain (method.resolution) and brought to the voxel centres trilinearly. Here it is replaced,
 at every voxel the renderer reads, by a shadow ray toward the sun through the grid's trilinear
-density (quarter-voxel steps, stopped past an optical depth of 30) and the scattered rest
+density (quarter-voxel steps, stopped past an optical depth of 30; single_study.shadow_ray) and the scattered rest
 ``phi - phi_dir`` kept, so the two images differ by ``phi_dir`` alone: its single scattering and
 the gathered light scattered from it. At each ``--voxel-depth`` (method.voxel_depth: 0, the
 medium's own voxels; else the finer grid it makes) the script prints popvol compare's metric for
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import time
 
 import numba as nb
@@ -28,46 +27,21 @@ from popvol import metrics
 from popvol.pipeline import seen_voxels
 from popvol.reference import load_reference
 from popvol.scene import apply_overrides, load_scene
+from single_study import shadow_ray           # scripts/, beside this one
 
 
 @nb.njit(parallel=True, fastmath=True)
 def shadow_rays(density, scale, origin, voxel, lo, hi, back, seen, step, out):
-    """out (the grid's shape) = exp(-tau) at each voxel centre where ``seen``, tau = scale x the
-    trilinear density (clamped to the outermost centres) integrated along ``back`` (unit, toward
-    the sun) to the box's face by the midpoint rule in steps of at most ``step``."""
+    """out (the grid's shape) = single_study.shadow_ray at each voxel centre where ``seen``:
+    exp(-tau) through the trilinear density toward the sun (``back``) to the box's face, in
+    steps of ``step``, stopped past an optical depth of 30."""
     nx, ny, nz = density.shape
     for i in nb.prange(nx):
         for j in range(ny):
             for k in range(nz):
-                if not seen[i, j, k]:
-                    continue
-                x = (origin[0] + i * voxel[0], origin[1] + j * voxel[1], origin[2] + k * voxel[2])
-                t_max = 1e300
-                for a in range(3):
-                    if back[a] > 1e-12:
-                        t_max = min(t_max, (hi[a] - x[a]) / back[a])
-                    elif back[a] < -1e-12:
-                        t_max = min(t_max, (lo[a] - x[a]) / back[a])
-                n = max(1, int(math.ceil(t_max / step)))
-                ds = t_max / n
-                tau = 0.0
-                for s in range(n):
-                    t = (s + 0.5) * ds
-                    u0 = min(max((x[0] + t * back[0] - origin[0]) / voxel[0], 0.0), nx - 1.0)
-                    u1 = min(max((x[1] + t * back[1] - origin[1]) / voxel[1], 0.0), ny - 1.0)
-                    u2 = min(max((x[2] + t * back[2] - origin[2]) / voxel[2], 0.0), nz - 1.0)
-                    i0, i1, i2 = min(int(u0), max(nx - 2, 0)), min(int(u1), max(ny - 2, 0)), min(int(u2), max(nz - 2, 0))
-                    f0, f1, f2 = u0 - i0, u1 - i1, u2 - i2
-                    v = 0.0
-                    for c0 in range(2):
-                        for c1 in range(2):
-                            for c2 in range(2):
-                                w = (f0 if c0 else 1 - f0) * (f1 if c1 else 1 - f1) * (f2 if c2 else 1 - f2)
-                                v += w * density[min(i0 + c0, nx - 1), min(i1 + c1, ny - 1), min(i2 + c2, nz - 1)]
-                    tau += scale * v * ds
-                    if tau > 30.0:
-                        break
-                out[i, j, k] = math.exp(-tau)
+                if seen[i, j, k]:
+                    x = (origin[0] + i * voxel[0], origin[1] + j * voxel[1], origin[2] + k * voxel[2])
+                    out[i, j, k] = shadow_ray(density, scale, origin, voxel, lo, hi, back, x, step, 30.0)
 
 
 def row(label: str, img, ref, mask) -> str:

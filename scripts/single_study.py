@@ -82,22 +82,30 @@ def march_single(density, scale, origin, voxel, lo, hi, albedo, g, sun, power, c
                 elif mode == UPSTREAM:
                     phi_dir = upstream(density, scale, origin, voxel, lo, hi, sun, field, x)
                 else:
-                    s0, s1 = ray_box(x, back, lo, hi)
-                    tau = 0.0
-                    s = 0.0
-                    while s < s1:
-                        dl = min(shadow_step, s1 - s)
-                        y = (x[0] + (s + 0.5 * dl) * back[0], x[1] + (s + 0.5 * dl) * back[1],
-                             x[2] + (s + 0.5 * dl) * back[2])
-                        cy = cell_corners((y[0] - origin[0]) / voxel[0], (y[1] - origin[1]) / voxel[1],
-                                          (y[2] - origin[2]) / voxel[2], density.shape)
-                        tau += scale * interpolate(density, cy) * dl
-                        s += dl
-                    phi_dir = math.exp(-tau)
+                    phi_dir = shadow_ray(density, scale, origin, voxel, lo, hi, back, x, shadow_step)
                 T_seg = math.exp(-scale * rho * ds)
                 L += T * (1.0 - T_seg) * albedo * power * phase * phi_dir
                 T *= T_seg
             out[py, px] = L
+
+
+@nb.njit(fastmath=True)
+def shadow_ray(density, scale, origin, voxel, lo, hi, back, x, shadow_step, tau_max=1e300):
+    """exp(-tau) at x: tau = scale x the trilinear density integrated from x along ``back``
+    (unit, toward the sun) to the box [lo, hi], by the midpoint rule in steps of
+    ``shadow_step`` (the last one cut at the box), stopped once tau exceeds ``tau_max``."""
+    s0, s1 = ray_box(x, back, lo, hi)
+    tau = 0.0
+    s = 0.0
+    while s < s1 and tau <= tau_max:
+        dl = min(shadow_step, s1 - s)
+        y = (x[0] + (s + 0.5 * dl) * back[0], x[1] + (s + 0.5 * dl) * back[1],
+             x[2] + (s + 0.5 * dl) * back[2])
+        cy = cell_corners((y[0] - origin[0]) / voxel[0], (y[1] - origin[1]) / voxel[1],
+                          (y[2] - origin[2]) / voxel[2], density.shape)
+        tau += scale * interpolate(density, cy) * dl
+        s += dl
+    return math.exp(-tau)
 
 
 @nb.njit(fastmath=True)

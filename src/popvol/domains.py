@@ -238,12 +238,13 @@ def available_memory() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def check_memory(nbytes: int, field: str, what: str) -> None:
-    """Raise a PopvolError before allocating ``nbytes`` if it exceeds 80 % of available memory."""
+def check_memory(nbytes: int, field: str, what: str, remedy: str = "lower it") -> None:
+    """Raise a PopvolError before allocating ``nbytes`` if it exceeds 80 % of available memory:
+    "{field}: {what} needs about N GiB, but only M GiB of memory is available; {remedy}"."""
     avail = available_memory()
     if nbytes > 0.8 * avail:
         raise PopvolError(f"{field}: {what} needs about {nbytes / 2**30:.1f} GiB, but only "
-                          f"{avail / 2**30:.1f} GiB of memory is available; lower it")
+                          f"{avail / 2**30:.1f} GiB of memory is available; {remedy}")
 
 
 @contextlib.contextmanager

@@ -194,14 +194,12 @@ class Medium:
             return self
 
         def make(density):
-            from .domains import available_memory     # domains imports this module
+            from .domains import check_memory     # domains imports this module
             shape = tuple(n * k for n, k in zip(density.shape, factors))
-            nbytes = 4 * int(np.prod(shape)) * (1 + self.albedo_per_voxel + self.g_per_voxel)
-            if nbytes > 0.8 * available_memory():
-                raise PopvolError(f"{self.source}: method.voxel_depth = {voxel_depth:g} cuts the medium's voxels into "
-                                  f"{'x'.join(map(str, factors))} parts, a {'x'.join(map(str, shape))} grid that "
-                                  f"needs about {nbytes / 2**30:.1f} GiB, but only {available_memory() / 2**30:.1f} "
-                                  "GiB of memory is available; raise method.voxel_depth (0: the medium's own voxels)")
+            check_memory(4 * int(np.prod(shape)) * (1 + self.albedo_per_voxel + self.g_per_voxel), self.source,
+                         f"method.voxel_depth = {voxel_depth:g} cuts the medium's voxels into "
+                         f"{'x'.join(map(str, factors))} parts: a {'x'.join(map(str, shape))} grid that",
+                         "raise method.voxel_depth (0: the medium's own voxels)")
             voxel = self.voxel_size / np.asarray(factors)
             lo, _ = self.bounds
             return replace(self, density=refine_grid(density, factors), voxel_size=voxel, origin=lo + voxel / 2,
