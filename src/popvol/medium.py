@@ -46,9 +46,13 @@ MAX_OPTICAL_DEPTH = 1e7
 #: reflection depends on its albedo and g, not on its density, and a cell's fields are its mean,
 #: which over a voxel many mean free paths deep is far below the light at its lit face.
 MAX_TRANSPORT_DEPTH = 2.0
-#: Most parts one voxel side is cut into at method.voxel_depth (Medium.refinement): 64 times the
-#: voxels at most.
-MAX_REFINEMENT = 4
+#: Most parts one voxel side is cut into at method.voxel_depth (Medium.refinement): 27 times the
+#: voxels at most. Odd, as every number of parts is (Medium.refinement).
+MAX_REFINEMENT = 3
+#: Most voxels the finer grid of method.voxel_depth has (Medium.refinement): beyond it the axes
+#: whose voxels are thinnest stay uncut, one by one, so that a large medium is rendered on its
+#: own voxels rather than refused (each light keeps some ten float32 fields per voxel).
+REFINED_VOXELS = 2 ** 25
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
@@ -172,15 +176,32 @@ class Medium:
 
     def refinement(self, voxel_depth: float) -> tuple[int, int, int]:
         """How many parts each voxel side is cut into so that no voxel is more than
-        ``voxel_depth`` mean free paths across any side: ceil(sigma_t,max h_a / voxel_depth) per
-        axis a (sigma_t,max of the densest voxel and channel), at most MAX_REFINEMENT; (1, 1, 1)
-        for voxel_depth 0 (method.voxel_depth: off)."""
+        ``voxel_depth`` mean free paths across any side: per axis a the smallest odd number at
+        least sigma_t,max h_a / voxel_depth (sigma_t,max of the densest voxel and channel), at
+        most MAX_REFINEMENT; (1, 1, 1) for voxel_depth 0 (method.voxel_depth: off). Where the
+        finer grid would have more than REFINED_VOXELS voxels, the axis whose voxels are
+        optically thinnest is left uncut, then the next, until it has no more.
+
+        Odd, so that every voxel centre of the medium is a centre of the finer grid too: the
+        trilinear density has its kinks at the medium's centres, and a finer grid read
+        trilinearly reproduces it exactly only if it has a centre at each of them (tested). An
+        even number of parts puts none there; it cuts the density's peaks and fills its valleys,
+        and it widens every edge of the medium by a fraction of a voxel, where the camera sees
+        a cloud's fringe against the sky."""
         if not voxel_depth:
             return (1, 1, 1)
         with np.errstate(over="ignore"):
             sigma_max = float(self.scale.max()) * float(self.density.max())
-        return tuple(int(min(MAX_REFINEMENT, max(1, np.ceil(sigma_max * h / voxel_depth - 1e-9))))
-                     for h in self.voxel_size)
+        parts = []
+        for h in self.voxel_size:
+            k = int(min(MAX_REFINEMENT, max(1.0, np.ceil(sigma_max * h / voxel_depth - 1e-9))))
+            parts.append(min(MAX_REFINEMENT, k + 1 - k % 2))
+        n = int(np.prod(self.density.shape))
+        for axis in np.argsort(self.voxel_size, kind="stable"):     # the thinnest voxel sides first
+            if n * int(np.prod(parts)) <= REFINED_VOXELS:
+                break
+            parts[axis] = 1
+        return tuple(parts)
 
     def refined(self, voxel_depth: float) -> "Medium":
         """The medium light is solved and rendered on at ``method.voxel_depth`` (docs/METHOD.md,

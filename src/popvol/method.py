@@ -196,13 +196,14 @@ KNOBS: tuple[Knob, ...] = (
          "the medium is dense, and read back by trilinear interpolation (the sweeps cost about "
          "f^-3 as much); 0 = the medium's own voxels."),
     Knob("voxel_depth", 0.0, (0.0, 1000.0), "Thickest voxel, in mean free paths, that light is solved and rendered on.",
-         "0 = the medium's own voxels. Otherwise each voxel side is cut into "
-         "ceil(sigma_t,max h / voxel_depth) equal parts (at most 4; sigma_t,max of the densest voxel) "
-         "and the density is read trilinearly at the finer voxels' centres, so that the single "
-         "scattering and the gathered last bounce resolve the lit skin of media whose voxels are "
-         "about a mean free path thick or more (docs/METHOD.md, \"Voxels thinner than a mean free "
-         "path\"). 0.5 mends the lit edges of the cumulus field seen against its sun; it costs "
-         "up to 64 times the voxels, and the render about as much more.", cli=("render", "compare")),
+         "0 = the medium's own voxels. Otherwise each voxel side is cut into the smallest odd "
+         "number of equal parts at least sigma_t,max h / voxel_depth (at most 3; sigma_t,max of "
+         "the densest voxel; odd, so that the finer grid keeps the medium's trilinear density "
+         "exactly) and the density is read trilinearly at the finer voxels' centres, so that the "
+         "single scattering and the gathered last bounce resolve the lit skin of media whose voxels "
+         "are about a mean free path thick or more (docs/METHOD.md, \"Voxels thinner than a mean "
+         "free path\"). It costs up to 27 times the voxels, and the render about as much more.",
+         cli=("render", "compare")),
     Knob("spp", 1, (1, 4096), "Camera rays per pixel.",
          "1 = one ray through the pixel centre, lit at the march segments' midpoints; more = "
          "that many rays at hashed (seeded) sub-pixel and along-ray offsets.", cli=("render", "compare")),
