@@ -8,8 +8,8 @@ With empty voxels above the slab, as a volume from a file has, the reflection le
 albedo problem's value however thick the voxels (the eighteen-ordinate walk, the default, 6-15 %
 below it; the one-lobe sweeps with their diffusion stage within 18 %): the march splits optically
 thick segments, so the single scattering samples the lit skin, and light transport sees voxels
-capped at Medium.transport_depth_cap() mean free paths (2, or 1 / (1 - g) where more), so the
-multiply scattered light is that of a medium whose cells resolve the depth it comes from; the gathered last bounce scatters the
+capped at medium.MAX_TRANSPORT_DEPTH mean free paths, so the multiply scattered light is that of a
+medium whose cells resolve the depth it comes from; the gathered last bounce scatters the
 unscattered light as the capped walk saw it (docs/METHOD.md Eq. 25g). Where the slab's face is
 the grid's own edge the fields are clamped to the top voxel's values, which hold little of the
 unscattered light of thick voxels, so the march takes it there by Beer-Lambert from the face
@@ -113,8 +113,7 @@ def test_reflection_of_a_slab_matches_monte_carlo(tau_voxel, resolution):
 
 def test_transport_sees_capped_voxels_and_the_unscattered_light_the_true_ones():
     """medium.transport_medium caps the density where a voxel is more than MAX_TRANSPORT_DEPTH mean
-    free paths across (the slab's g = 0.5: Medium.transport_depth_cap is 2 up to it; albedo, g
-    and the thin voxels untouched, a thin medium returned as it
+    free paths across (albedo, g and the thin voxels untouched, a thin medium returned as it
     is), and popvol.solve walks that medium while its unscattered light is Beer-Lambert through
     the true density: a sun straight down the slab's columns, so the cell centres' direct
     fluence is exp(-tau) of the depth crossed (Eq. 22), and the scattered rest phi - direct is
@@ -166,38 +165,3 @@ def test_gather_scatters_the_unscattered_light_of_the_capped_medium():
     thin = slab_scene(1.0, 16)
     thin_sol = popvol.solve(thin)
     assert transport_direct(thin_sol) is None and gathered_fields(thin_sol) is thin_sol
-
-
-def test_the_cap_is_in_transport_mean_free_paths_where_the_medium_scatters_forward():
-    """medium.Medium.transport_depth_cap: MAX_TRANSPORT_DEPTH (2) mean free paths per voxel, or
-    MAX_REDUCED_DEPTH / (1 - g) where that is more, g the smallest of the medium's."""
-    from popvol.medium import Medium
-    for g, cap in ((-0.5, 2.0), (0.0, 2.0), (0.5, 2.0), (0.85, 1 / 0.15)):
-        med = Medium(np.ones((4, 4, 4), np.float32), 0.25, [0.0, 0.0, 0.0], scale=16.0, g=g)   # 4 mfp per voxel
-        assert med.transport_depth_cap() == pytest.approx(cap)
-        assert med.transport_medium().max_voxel_optical_depth() == pytest.approx(min(4.0, cap), rel=1e-6)
-    g = np.full((4, 4, 4), 0.85, np.float32)
-    g[0, 0, 0] = 0.7
-    med = Medium(np.ones((4, 4, 4), np.float32), 0.25, [0.0, 0.0, 0.0], scale=16.0, g=g)
-    assert med.transport_depth_cap() == pytest.approx(1 / 0.3, rel=1e-6)
-
-
-def test_a_forward_scattering_slab_keeps_its_reflection_where_its_voxels_are_thick(monkeypatch):
-    """A cloud's g (0.85, albedo 0.999): a slab of 4 voxels of 4 mean free paths each, empty voxels
-    above it, against the plane-parallel Monte Carlo. Capped at MAX_TRANSPORT_DEPTH (2) mean free
-    paths per voxel, as every medium was, the slab is 8 mean free paths deep to its scattered
-    light, 1.2 transport mean free paths, and lets it through: x0.54 / x0.60 of the Monte Carlo's
-    reflection at 16 / 32 cells. In transport mean free paths (the cap 6.7 here, so these voxels
-    are not capped) x0.75 / x0.89 (measured): what is left is the walk's cells, 4 mean free paths
-    wide at 16 cells, and it halves from 16 to 32."""
-    mc = half_space_mc(LIGHT, VIEW, 0.999, 0.85, depth=slab_depth(4.0), n_photons=PHOTONS)
-
-    def reflection(resolution):
-        scene = slab_scene(4.0, resolution, pad=2, albedo=0.999, g=0.85)
-        return centre_radiance(popvol.render(scene, popvol.solve(scene), jitter=False)) / mc["total"]
-
-    coarse, fine = reflection(16), reflection(32)
-    assert fine == pytest.approx(1.0, abs=0.15)
-    assert coarse < fine < 1.0 + GOAL                   # converging with the cells, from below
-    monkeypatch.setattr("popvol.medium.MAX_REDUCED_DEPTH", 0.0)        # capped at 2 mean free paths
-    assert reflection(16) < coarse - 0.15 and reflection(32) < fine - 0.2

@@ -40,18 +40,12 @@ MAX_SCALE = 1e30
 #: thunderhead is ~1e4); denser media are opaque and their products overflow.
 MAX_OPTICAL_DEPTH = 1e7
 #: Optical depth of one voxel (sigma_t x the voxel's shortest side) that light transport sees at
-#: most (docs/METHOD.md, "Optically thick voxels"), where the medium scatters about evenly: the
-#: walk, the diffusion stage and the gathered last bounce solve a medium whose densest voxels are
-#: capped at Medium.transport_depth_cap() mean free paths, while the unscattered light and the
-#: camera's march see the true density. An optically thick region's reflection depends on its
-#: albedo and g, not on its density, and a cell's fields are its mean, which over a voxel many
-#: mean free paths deep is far below the light at its lit face.
+#: most (docs/METHOD.md, "Optically thick voxels"): the walk, the diffusion stage and the gathered
+#: last bounce solve a medium whose densest voxels are capped at this many mean free paths, while
+#: the unscattered light and the camera's march see the true density. An optically thick region's
+#: reflection depends on its albedo and g, not on its density, and a cell's fields are its mean,
+#: which over a voxel many mean free paths deep is far below the light at its lit face.
 MAX_TRANSPORT_DEPTH = 2.0
-#: The same cap in transport mean free paths, sigma_t (1 - g) x the voxel's shortest side: a
-#: forward-scattering medium (a cloud's g of 0.85) is optically thick to its scattered light only
-#: over 1 / (1 - g) mean free paths, so capping it at MAX_TRANSPORT_DEPTH would make a region a
-#: few voxels deep let its scattered light through. The cap is the larger of the two.
-MAX_REDUCED_DEPTH = 1.0
 #: Most parts one voxel side is cut into at method.voxel_depth (Medium.refinement): 27 times the
 #: voxels at most. Odd, as every number of parts is (Medium.refinement).
 MAX_REFINEMENT = 3
@@ -246,22 +240,14 @@ class Medium:
             self._derived[name] = made
         return made[1]
 
-    def transport_depth_cap(self) -> float:
-        """Most mean free paths across one voxel (its shortest side) that light transport sees:
-        max(MAX_TRANSPORT_DEPTH, MAX_REDUCED_DEPTH / (1 - g)), g the medium's (per voxel, its
-        smallest), so that a capped voxel is at least one transport mean free path deep, as at
-        the g = 0.5 the cap of 2 was measured at (tests/test_dense_slab.py)."""
-        return max(MAX_TRANSPORT_DEPTH, MAX_REDUCED_DEPTH / (1.0 - self.g_min))
-
     def transport_medium(self) -> "Medium":
         """The medium light transport solves (docs/METHOD.md, "Optically thick voxels"): this
-        one with its density capped where a voxel would be more than :meth:`transport_depth_cap`
-        mean free paths across (sigma_t of the densest channel times the voxel's shortest side),
-        albedo and g unchanged; this medium itself where no voxel is."""
-        depth = self.transport_depth_cap()
-        if self.max_voxel_optical_depth() <= depth:
+        one with its density capped where a voxel would be more than MAX_TRANSPORT_DEPTH mean free
+        paths across (sigma_t of the densest channel times the voxel's shortest side), albedo
+        and g unchanged; this medium itself where no voxel is."""
+        if self.max_voxel_optical_depth() <= MAX_TRANSPORT_DEPTH:
             return self
-        cap = depth / (float(self.scale.max()) * float(self.voxel_size.min()))
+        cap = MAX_TRANSPORT_DEPTH / (float(self.scale.max()) * float(self.voxel_size.min()))
         # one capped array per density and cap, so that what is kept for a grid (the renderer's
         # gather state) is found again
         return replace(self, density=self.derived(f"transport density {cap!r}",
