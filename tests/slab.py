@@ -25,18 +25,19 @@ def slab_depth(tau_voxel: float, n: int = N) -> float:
     return tau_voxel * (n // 4)
 
 
-def slab_scene(tau_voxel: float, resolution: int, n: int = N, pad: int = 0) -> Scene:
+def slab_scene(tau_voxel: float, resolution: int, n: int = N, pad: int = 0, albedo: float = ALBEDO,
+               g: float = G) -> Scene:
     """A slab of unit density, n x n x n/4 voxels of 1/8 (``tau_voxel`` mean free paths each),
     its top face z = 0 seen straight down by a 16 x 16 camera whose centre pixels see only it.
     ``pad``: layers of empty voxels above it, as a volume read from a file has (the density then
     ramps from 1 to 0 between z = -1/16 and 1/16, the centres of the top full voxel and of the
     first empty one: the same optical depth, and a plane-parallel medium's reflection depends on
-    its optical depths alone)."""
+    its optical depths alone). ``albedo`` and ``g``: the medium's (ALBEDO and G by default)."""
     rho = np.zeros((n, n, n // 4 + pad), np.float32)
     rho[:, :, :n // 4] = 1.0
     h = VOXEL
     origin = np.array([-n / 16 + h / 2, -n / 16 + h / 2, -n / 32 + h / 2])
-    med = Medium(rho, h, origin, scale=tau_voxel / h, albedo=ALBEDO, g=G, source="slab")
+    med = Medium(rho, h, origin, scale=tau_voxel / h, albedo=albedo, g=g, source="slab")
     cam = Camera([0.0, 0.0, 4.0], [0.0, 0.0, 0.0], [0, 1, 0], 6.0, 16, 16)
     return Scene(med, [DirectionalLight(LIGHT, 1.0)], cam, np.zeros(3), Method(resolution=resolution))
 

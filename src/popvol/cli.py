@@ -167,6 +167,9 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
             click.echo(f"popvol: warning: light {d['light']} stopped after {d['iterations']} iterations "
                        f"with {d['residual']:.1e} of its energy still in flight (tolerance {tol:g}); "
                        "raise method.max_iterations for a converged image", err=True)
+    capped = sc.medium.refined(sc.method.voxel_depth).capped_scattering_warning()
+    if capped:
+        click.echo(f"popvol: warning: {capped}", err=True)
     if stats:
         doc = {"scene": sc.source, "image": str(output), "width": sc.camera.width, "height": sc.camera.height,
                "method": vars(sc.method), "seconds": seconds, "grid": info["grid"], "domains": info["domains"]}
@@ -424,6 +427,9 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
         write_image(output, img, sc.method.exposure, sc.method.tone)
     if res["mask_pixels"] == 0:
         click.echo("popvol: warning: no camera ray crosses the medium; the relative metrics are n/a", err=True)
+    capped = sc.medium.refined(sc.method.voxel_depth).capped_scattering_warning()
+    if capped:
+        click.echo(f"popvol: warning: {capped}", err=True)
     b = res["brightness_bands"]
     flip = res["flip"]
     click.echo(f"relMSE {_fmt(res['relmse'], '.4g')} on {res['mask_pixels']} medium pixels  "

@@ -240,6 +240,22 @@ class Medium:
             self._derived[name] = made
         return made[1]
 
+    def capped_scattering_warning(self) -> str | None:
+        """One line for the user where light transport caps this medium's voxels
+        (:meth:`transport_medium`) and the medium scatters forward (its smallest g above 0.5),
+        so that a capped voxel is less than one transport mean free path, 1 / (1 - g) mean free
+        paths, deep: there the capped medium lets its scattered light through and the image
+        comes out too dark (docs/METHOD.md, "Optically thick voxels"); None elsewhere."""
+        tau, g = self.max_voxel_optical_depth(), self.g_min
+        if tau <= MAX_TRANSPORT_DEPTH or MAX_TRANSPORT_DEPTH * (1.0 - g) >= 1.0:
+            return None
+        return (f"{self.source}: the densest voxels are {tau:.3g} mean free paths across and g = {g:.2f}; light "
+                f"transport caps them at {MAX_TRANSPORT_DEPTH:g} mean free paths, {MAX_TRANSPORT_DEPTH * (1.0 - g):.2g} "
+                f"of a transport mean free path (1 / (1 - g) = {1.0 / (1.0 - g):.3g}), so their scattered light leaks "
+                "through and the image comes out too dark (a slab at g = 0.85 and 4 mean free paths per voxel: x0.6 "
+                "of Monte Carlo; docs/METHOD.md, \"Optically thick voxels\"); method.voxel_depth cuts voxels up to "
+                "3 times finer")
+
     def transport_medium(self) -> "Medium":
         """The medium light transport solves (docs/METHOD.md, "Optically thick voxels"): this
         one with its density capped where a voxel would be more than MAX_TRANSPORT_DEPTH mean free
