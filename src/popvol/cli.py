@@ -167,7 +167,7 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
             click.echo(f"popvol: warning: light {d['light']} stopped after {d['iterations']} iterations "
                        f"with {d['residual']:.1e} of its energy still in flight (tolerance {tol:g}); "
                        "raise method.max_iterations for a converged image", err=True)
-    capped = sc.medium.refined(sc.method.voxel_depth).capped_scattering_warning()
+    capped = solution.medium.capped_scattering_warning()     # the grid it was solved on
     if capped:
         click.echo(f"popvol: warning: {capped}", err=True)
     if stats:
@@ -427,7 +427,7 @@ def compare(scene, ref_path, json_out, figure, output, **knobs):
         write_image(output, img, sc.method.exposure, sc.method.tone)
     if res["mask_pixels"] == 0:
         click.echo("popvol: warning: no camera ray crosses the medium; the relative metrics are n/a", err=True)
-    capped = sc.medium.refined(sc.method.voxel_depth).capped_scattering_warning()
+    capped = solution.medium.capped_scattering_warning()     # the grid it was solved on
     if capped:
         click.echo(f"popvol: warning: {capped}", err=True)
     b = res["brightness_bands"]

@@ -192,10 +192,9 @@ class Medium:
             return (1, 1, 1)
         with np.errstate(over="ignore"):
             sigma_max = float(self.scale.max()) * float(self.density.max())
-        parts = []
-        for h in self.voxel_size:
-            k = int(min(MAX_REFINEMENT, max(1.0, np.ceil(sigma_max * h / voxel_depth - 1e-9))))
-            parts.append(min(MAX_REFINEMENT, k + 1 - k % 2))
+        # the least parts, at most MAX_REFINEMENT (odd), rounded up to odd (k | 1)
+        parts = [int(min(MAX_REFINEMENT, max(1.0, np.ceil(sigma_max * h / voxel_depth - 1e-9)))) | 1
+                 for h in self.voxel_size]
         n = int(np.prod(self.density.shape))
         for axis in np.argsort(self.voxel_size, kind="stable"):     # the thinnest voxel sides first
             if n * int(np.prod(parts)) <= REFINED_VOXELS:

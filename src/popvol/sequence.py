@@ -760,7 +760,7 @@ def _write_frame(sc, frame, image, exr_path, img, solution, seconds, t0) -> dict
         if not d.get("converged", True):
             warnings.append(f"frame {frame}: light {d['light']} stopped after {d['iterations']} iterations with "
                             f"{d['residual']:.1e} of its energy in flight; raise method.max_iterations")
-    capped = sc.medium.refined(sc.method.voxel_depth).capped_scattering_warning()
+    capped = solution.medium.capped_scattering_warning()     # the grid it was solved on
     if capped:
         warnings.append(f"frame {frame}: {capped}")
     res = {"frame": frame, "path": str(image), "exr": None if exr_path is None else str(exr_path),
