@@ -8,9 +8,9 @@ With empty voxels above the slab, as a volume from a file has, the reflection le
 albedo problem's value however thick the voxels (the eighteen-ordinate walk, the default, 6-15 %
 below it; the one-lobe sweeps with their diffusion stage within 18 %): the march splits optically
 thick segments, so the single scattering samples the lit skin, and light transport sees voxels
-capped at medium.MAX_TRANSPORT_DEPTH mean free paths, so the multiply scattered light is that of a
-medium whose cells resolve the depth it comes from; the gathered last bounce scatters the
-unscattered light as the capped walk saw it (docs/METHOD.md Eq. 25g). Where the slab's face is
+capped at Medium.transport_depth_cap() mean free paths (2 at this slab's albedo of 0.9), so the
+multiply scattered light is that of a medium whose cells resolve the depth it comes from; the
+gathered last bounce scatters the unscattered light as the capped walk saw it (docs/METHOD.md Eq. 25g). Where the slab's face is
 the grid's own edge the fields are clamped to the top voxel's values, which hold little of the
 unscattered light of thick voxels, so the march takes it there by Beer-Lambert from the face
 (Eq. 25d) and the single scattering is the Monte Carlo's; the whole reflection is within the goal
@@ -167,21 +167,76 @@ def test_gather_scatters_the_unscattered_light_of_the_capped_medium():
     assert transport_direct(thin_sol) is None and gathered_fields(thin_sol) is thin_sol
 
 
-def test_a_capped_forward_scattering_medium_is_named_in_a_warning(tmp_path):
-    """Capped at MAX_TRANSPORT_DEPTH mean free paths, a voxel of a medium with g above 0.5 is less
-    than one transport mean free path deep, and its scattered light leaks through: the slab of
-    g = 0.85 at 4 mean free paths per voxel reflects x0.54 / x0.60 of the Monte Carlo at 16 / 32
-    cells (measured; docs/METHOD.md, "Optically thick voxels"), where at g = 0.5 it is x0.85-x0.94
-    from 10 mean free paths per voxel on (README). popvol render says so in one line; not where
-    the cap keeps a transport mean free path (g <= 0.5), nor where no voxel is capped."""
+def test_the_cap_follows_the_diffusion_length_up_to_a_transport_mean_free_path():
+    """medium.Medium.transport_depth_cap: MAX_TRANSPORT_DEPTH (2) mean free paths per voxel, or
+    half the diffusion length L_d = 1 / sqrt(3 (1 - a) (1 - a g)) where that is more, but at most
+    one transport mean free path, 1 / (1 - g); a and g the smallest of the medium's (of the
+    voxels holding medium, for a grid of albedos)."""
+    from popvol.medium import Medium
+
+    def cap(albedo, g, density=None):
+        rho = np.ones((4, 4, 4), np.float32) if density is None else density
+        return Medium(rho, 0.25, [0.0, 0.0, 0.0], scale=40.0, albedo=albedo, g=g).transport_depth_cap()
+
+    half_ld = 0.5 / np.sqrt(3 * 0.03 * (1 - 0.97 * 0.85))                 # 3.98 mean free paths
+    for albedo, g, expect in ((1.0, 0.5, 2.0), (1.0, -0.5, 2.0), (0.999, 0.5, 2.0), (0.9, 0.85, 2.0),
+                              (1.0, 0.6, 2.5), (1.0, 0.85, 1 / 0.15), (0.999, 0.85, 1 / 0.15),
+                              (0.97, 0.85, half_ld)):
+        assert cap(albedo, g) == pytest.approx(expect, rel=1e-6), (albedo, g)
+    g = np.full((4, 4, 4), 0.85, np.float32)
+    g[0, 0, 0] = 0.7
+    assert cap(1.0, g) == pytest.approx(1 / 0.3, rel=1e-6)
+    albedo = np.full((4, 4, 4), 1.0, np.float32)
+    albedo[0, 0, 0] = 0.5                                           # in an empty voxel: not the medium's
+    rho = np.ones((4, 4, 4), np.float32)
+    rho[0, 0, 0] = 0.0
+    assert cap(albedo, 0.85, rho) == pytest.approx(1 / 0.15, rel=1e-6)
+    med = Medium(np.ones((4, 4, 4), np.float32), 0.25, [0.0, 0.0, 0.0], scale=40.0, albedo=1.0, g=0.85)
+    assert med.transport_medium().max_voxel_optical_depth() == pytest.approx(1 / 0.15, rel=1e-6)   # 10 -> 6.7
+
+
+def test_a_white_forward_scattering_slab_on_thick_voxels_against_monte_carlo(monkeypatch):
+    """A cloud's optics, albedo 0.999 and g 0.85, on voxels of 10 mean free paths, empty voxels
+    above the slab, against the plane-parallel Monte Carlo. Capped at 2 mean free paths per voxel,
+    the slab is 8 mean free paths deep, 1.2 transport mean free paths, where light of this albedo
+    comes back from some 50 (its diffusion length), so its scattered light leaks through: x0.39 /
+    x0.43 at 16 / 32 cells (measured). Capped at one transport mean free path (6.7 mean free
+    paths, less than half its diffusion length) x0.61 / x0.72: still too dark (the warning below),
+    converging from below. An absorbing medium with the same g (albedo 0.9, diffusion length 3.8
+    mean free paths) keeps the cap of 2, where it is within 6 % (x0.95 / x1.01); capped at one
+    transport mean free path it would be x0.77 / x0.77."""
+    def reflection(resolution, albedo=0.999):
+        mc = half_space_mc(LIGHT, VIEW, albedo, 0.85, depth=slab_depth(10.0), n_photons=PHOTONS)
+        scene = slab_scene(10.0, resolution, pad=2, albedo=albedo, g=0.85)
+        return centre_radiance(popvol.render(scene, popvol.solve(scene), jitter=False)) / mc["total"]
+
+    coarse, fine = reflection(16), reflection(32)
+    assert 0.5 < coarse < fine < 1.0 + GOAL
+    absorbing = reflection(32, albedo=0.9)
+    assert absorbing == pytest.approx(1.0, abs=0.1)
+    monkeypatch.setattr("popvol.medium.MAX_REDUCED_DEPTH", 0.0)           # capped at 2 mean free paths
+    assert reflection(16) < coarse - 0.15 and reflection(32) < fine - 0.2
+    assert reflection(32, albedo=0.9) == absorbing                        # already capped at 2
+    monkeypatch.undo()
+    monkeypatch.setattr("popvol.medium.DIFFUSION_LENGTH_SHARE", np.inf)   # at one transport mean free path
+    assert reflection(32, albedo=0.9) < absorbing - 0.15
+
+
+def test_a_medium_capped_short_of_its_diffusion_length_is_named_in_a_warning(tmp_path):
+    """Where light transport caps voxels short of half the medium's diffusion length (held at one
+    transport mean free path, or at 2 mean free paths where g <= 0.5), their scattered light
+    leaks through and the image comes out too dark (the slab above, x0.61 at 16 cells; at g = 0.5
+    and albedo 0.999 x0.56-0.66 from 10 mean free paths per voxel on, measured). popvol render
+    says so in one line; not where the cap reaches half the diffusion length (albedo 0.9), nor
+    where no voxel is capped."""
     import subprocess
     import sys
-    mc = half_space_mc(LIGHT, VIEW, 0.999, 0.85, depth=slab_depth(4.0), n_photons=PHOTONS)
-    scene = slab_scene(4.0, 16, pad=2, albedo=0.999, g=0.85)
-    assert centre_radiance(popvol.render(scene, popvol.solve(scene), jitter=False)) < 0.7 * mc["total"]
-    assert "of a transport mean free path" in scene.medium.capped_scattering_warning()
-    assert slab_scene(4.0, 16).medium.capped_scattering_warning() is None             # g = 0.5
-    assert slab_scene(1.0, 16, g=0.85).medium.capped_scattering_warning() is None     # nothing capped
+    assert "less than the depth this medium reflects light from" in \
+        slab_scene(10.0, 16, albedo=0.999, g=0.85).medium.capped_scattering_warning()
+    assert slab_scene(10.0, 16, albedo=0.999).medium.capped_scattering_warning() is not None   # g = 0.5
+    assert slab_scene(10.0, 16).medium.capped_scattering_warning() is None                       # albedo 0.9
+    assert slab_scene(10.0, 16, g=0.85).medium.capped_scattering_warning() is None
+    assert slab_scene(4.0, 16, albedo=0.999, g=0.85).medium.capped_scattering_warning() is None  # not capped
     toml = tmp_path / "thick.toml"
     toml.write_text('[medium]\ntype = "procedural"\nresolution = 12\nscale = 400.0\ng = 0.85\n\n'
                     '[[lights]]\ntype = "directional"\ndirection = [0.3, -1.0, -0.2]\nirradiance = 1.0\n\n'
@@ -189,5 +244,5 @@ def test_a_capped_forward_scattering_medium_is_named_in_a_warning(tmp_path):
     r = subprocess.run([sys.executable, "-m", "popvol.cli", "render", str(toml), "-o", str(tmp_path / "x.exr")],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    lines = [line for line in r.stderr.splitlines() if "of a transport mean free path" in line]
+    lines = [line for line in r.stderr.splitlines() if "reflects light from" in line]
     assert len(lines) == 1 and lines[0].startswith(f"popvol: warning: {toml}: the densest voxels are"), r.stderr

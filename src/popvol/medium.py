@@ -40,12 +40,20 @@ MAX_SCALE = 1e30
 #: thunderhead is ~1e4); denser media are opaque and their products overflow.
 MAX_OPTICAL_DEPTH = 1e7
 #: Optical depth of one voxel (sigma_t x the voxel's shortest side) that light transport sees at
-#: most (docs/METHOD.md, "Optically thick voxels"): the walk, the diffusion stage and the gathered
-#: last bounce solve a medium whose densest voxels are capped at this many mean free paths, while
-#: the unscattered light and the camera's march see the true density. An optically thick region's
-#: reflection depends on its albedo and g, not on its density, and a cell's fields are its mean,
-#: which over a voxel many mean free paths deep is far below the light at its lit face.
+#: most in a medium that absorbs (docs/METHOD.md, "Optically thick voxels"): the walk, the
+#: diffusion stage and the gathered last bounce solve a medium whose densest voxels are capped at
+#: Medium.transport_depth_cap() mean free paths, while the unscattered light and the camera's
+#: march see the true density. An optically thick region's reflection depends on its albedo and
+#: g, not on its density, and a cell's fields are its mean, which over a voxel many mean free
+#: paths deep is far below the light at its lit face.
 MAX_TRANSPORT_DEPTH = 2.0
+#: A medium that hardly absorbs reflects light from deeper, its diffusion length L_d = 1 /
+#: sqrt(3 sigma_a sigma_tr) (sigma_tr = sigma_t (1 - albedo g)): its voxels are capped at this
+#: share of it where that is more than MAX_TRANSPORT_DEPTH, so that two capped voxels span it...
+DIFFUSION_LENGTH_SHARE = 0.5
+#: ... and at most at this many transport mean free paths, 1 / (1 - g) mean free paths: deeper
+#: cells darken the walk's fields (a white medium under a uniform sky; docs/METHOD.md).
+MAX_REDUCED_DEPTH = 1.0
 #: Most parts one voxel side is cut into at method.voxel_depth (Medium.refinement): 27 times the
 #: voxels at most. Odd, as every number of parts is (Medium.refinement).
 MAX_REFINEMENT = 3
@@ -169,6 +177,31 @@ class Medium:
         lo, hi = self.bounds
         return float(np.linalg.norm(hi - lo))
 
+    @property
+    def albedo_min(self) -> float:
+        """The smallest albedo of any channel, or of any voxel holding medium (a grid)."""
+        if self.albedo_per_voxel:
+            held = self.albedo[self.density > 0]
+            return float(held.min()) if held.size else 1.0
+        return float(np.min(self.albedo))
+
+    def diffusion_length(self) -> float:
+        """The diffusion length in mean free paths, L_d = 1 / sqrt(3 (1 - a) (1 - a g)), a and g
+        the medium's smallest albedo and g: the depth from which a medium that hardly absorbs
+        reflects light (inf where a = 1)."""
+        a, g = self.albedo_min, self.g_min
+        absorbed = (1.0 - a) * (1.0 - a * g)
+        return float(1.0 / np.sqrt(3.0 * absorbed)) if absorbed > 0 else np.inf
+
+    def transport_depth_cap(self) -> float:
+        """Most mean free paths across one voxel (its shortest side) that light transport sees
+        (:meth:`transport_medium`; docs/METHOD.md Eq. 27): MAX_TRANSPORT_DEPTH, or where more,
+        DIFFUSION_LENGTH_SHARE of :meth:`diffusion_length` but at most MAX_REDUCED_DEPTH / (1 -
+        g) (one transport mean free path), g the medium's smallest. So 2 where g <= 0.5 or L_d <= 4 mean free paths (an albedo of 0.9
+        with g up to 0.88), and 6.7 for a white cloud of g = 0.85."""
+        skin = DIFFUSION_LENGTH_SHARE * self.diffusion_length()
+        return float(max(MAX_TRANSPORT_DEPTH, min(MAX_REDUCED_DEPTH / (1.0 - self.g_min), skin)))
+
     def max_voxel_optical_depth(self) -> float:
         """Largest sigma_t times the voxel's shortest side: mean free paths across one voxel."""
         with np.errstate(over="ignore"):
@@ -241,28 +274,29 @@ class Medium:
 
     def capped_scattering_warning(self) -> str | None:
         """One line for the user where light transport caps this medium's voxels
-        (:meth:`transport_medium`) and the medium scatters forward (its smallest g above 0.5),
-        so that a capped voxel is less than one transport mean free path, 1 / (1 - g) mean free
-        paths, deep: there the capped medium lets its scattered light through and the image
-        comes out too dark (docs/METHOD.md, "Optically thick voxels"); None elsewhere."""
-        tau, g = self.max_voxel_optical_depth(), self.g_min
-        if tau <= MAX_TRANSPORT_DEPTH or MAX_TRANSPORT_DEPTH * (1.0 - g) >= 1.0:
+        (:meth:`transport_medium`) below half its diffusion length (held at one transport mean
+        free path, or at MAX_TRANSPORT_DEPTH where g <= 0.5): there the capped voxels let the
+        scattered light of a medium that hardly absorbs through and the image comes out too dark
+        (docs/METHOD.md, "Optically thick voxels"); None elsewhere."""
+        tau, cap = self.max_voxel_optical_depth(), self.transport_depth_cap()
+        if tau <= cap or cap >= DIFFUSION_LENGTH_SHARE * self.diffusion_length():
             return None
-        return (f"{self.source}: the densest voxels are {tau:.3g} mean free paths across and g = {g:.2f}; light "
-                f"transport caps them at {MAX_TRANSPORT_DEPTH:g} mean free paths, {MAX_TRANSPORT_DEPTH * (1.0 - g):.2g} "
-                f"of a transport mean free path (1 / (1 - g) = {1.0 / (1.0 - g):.3g}), so their scattered light leaks "
-                "through and the image comes out too dark (a slab at g = 0.85 and 4 mean free paths per voxel: x0.6 "
-                "of Monte Carlo; docs/METHOD.md, \"Optically thick voxels\"); method.voxel_depth cuts voxels up to "
-                "3 times finer")
+        return (f"{self.source}: the densest voxels are {tau:.3g} mean free paths across (albedo "
+                f"{self.albedo_min:.3g}, g {self.g_min:.2f}); light transport caps them at {cap:.3g} mean free "
+                "paths, less than the depth this medium reflects light from, so their scattered light leaks through "
+                "and the image comes out too dark (a slab of albedo 0.999 and g = 0.85 at 10 mean free paths per voxel: x0.61 / x0.72 of "
+                "Monte Carlo at 16 / 32 cells; docs/METHOD.md, \"Optically thick voxels\"); method.voxel_depth cuts "
+                "voxels up to 3 times finer")
 
     def transport_medium(self) -> "Medium":
         """The medium light transport solves (docs/METHOD.md, "Optically thick voxels"): this
-        one with its density capped where a voxel would be more than MAX_TRANSPORT_DEPTH mean free
-        paths across (sigma_t of the densest channel times the voxel's shortest side), albedo
-        and g unchanged; this medium itself where no voxel is."""
-        if self.max_voxel_optical_depth() <= MAX_TRANSPORT_DEPTH:
+        one with its density capped where a voxel would be more than :meth:`transport_depth_cap`
+        mean free paths across (sigma_t of the densest channel times the voxel's shortest side),
+        albedo and g unchanged; this medium itself where no voxel is."""
+        depth = self.transport_depth_cap()
+        if self.max_voxel_optical_depth() <= depth:
             return self
-        cap = MAX_TRANSPORT_DEPTH / (float(self.scale.max()) * float(self.voxel_size.min()))
+        cap = depth / (float(self.scale.max()) * float(self.voxel_size.min()))
         # one capped array per density and cap, so that what is kept for a grid (the renderer's
         # gather state) is found again
         return replace(self, density=self.derived(f"transport density {cap!r}",

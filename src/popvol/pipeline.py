@@ -55,7 +55,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     """Build the light's domain (or take ``domain``, ``light.domain(medium, method)`` built
     before), resample the medium (colour ``channel``) into it, walk unit
     power and, with the diffusion stage, diffuse what was handed over. Light transport sees
-    ``transport`` (None: ``medium.transport_medium()``, voxels thicker than MAX_TRANSPORT_DEPTH
+    ``transport`` (None: ``medium.transport_medium()``, voxels thicker than its transport_depth_cap()
     mean free paths capped); the unscattered light (``direct``) the medium itself.
 
     ``warm``: the same light's domain solution from an earlier frame (see :func:`solve`): its
