@@ -10,11 +10,12 @@ below it; the one-lobe sweeps with their diffusion stage within 18 %): the march
 thick segments, so the single scattering samples the lit skin, and light transport sees voxels
 capped at Medium.transport_depth_cap() mean free paths (2 at this slab's albedo of 0.9), so the
 multiply scattered light is that of a medium whose cells resolve the depth it comes from; the
-gathered last bounce scatters the unscattered light as the capped walk saw it (docs/METHOD.md Eq. 25g). Where the slab's face is
-the grid's own edge the fields are clamped to the top voxel's values, which hold little of the
-unscattered light of thick voxels, so the march takes it there by Beer-Lambert from the face
-(Eq. 25d) and the single scattering is the Monte Carlo's; the whole reflection is within the goal
-(5 % of Monte Carlo) from 0.25 mean free paths per voxel to 10^4 (16 cells; 0.25 at 32).
+gathered last bounce scatters the unscattered light as the capped walk saw it (docs/METHOD.md
+Eq. 25g). Where the slab's face is the grid's own edge the fields are clamped to the top voxel's
+values, which hold little of the unscattered light of thick voxels, so the march takes it there
+by Beer-Lambert from the face (Eq. 25d) and the single scattering is the Monte Carlo's; the whole
+reflection is within the goal (5 % of Monte Carlo) from 0.25 mean free paths per voxel to 10^4 (16
+cells; 0.25 at 32).
 ``python scripts/dense_slab.py --solver ordinates [--pad 2]`` prints the whole table.
 """
 import numpy as np

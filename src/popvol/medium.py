@@ -40,12 +40,12 @@ MAX_SCALE = 1e30
 #: thunderhead is ~1e4); denser media are opaque and their products overflow.
 MAX_OPTICAL_DEPTH = 1e7
 #: Optical depth of one voxel (sigma_t x the voxel's shortest side) that light transport sees at
-#: most in a medium that absorbs (docs/METHOD.md, "Optically thick voxels"): the walk, the
-#: diffusion stage and the gathered last bounce solve a medium whose densest voxels are capped at
-#: Medium.transport_depth_cap() mean free paths, while the unscattered light and the camera's
-#: march see the true density. An optically thick region's reflection depends on its albedo and
-#: g, not on its density, and a cell's fields are its mean, which over a voxel many mean free
-#: paths deep is far below the light at its lit face.
+#: most in a medium that absorbs, and the least cap in any (docs/METHOD.md, "Optically thick
+#: voxels", Eq. 27): the walk, the diffusion stage and the gathered last bounce solve a medium
+#: whose densest voxels are capped at Medium.transport_depth_cap() mean free paths, while the
+#: unscattered light and the camera's march see the true density. An optically thick region's
+#: reflection depends on its albedo and g, not on its density, and a cell's fields are its mean,
+#: which over a voxel many mean free paths deep is far below the light at its lit face.
 MAX_TRANSPORT_DEPTH = 2.0
 #: A medium that hardly absorbs reflects light from deeper, its diffusion length L_d = 1 /
 #: sqrt(3 sigma_a sigma_tr) (sigma_tr = sigma_t (1 - albedo g)): its voxels are capped at this
@@ -197,8 +197,9 @@ class Medium:
         """Most mean free paths across one voxel (its shortest side) that light transport sees
         (:meth:`transport_medium`; docs/METHOD.md Eq. 27): MAX_TRANSPORT_DEPTH, or where more,
         DIFFUSION_LENGTH_SHARE of :meth:`diffusion_length` but at most MAX_REDUCED_DEPTH / (1 -
-        g) (one transport mean free path), g the medium's smallest. So 2 where g <= 0.5 or L_d <= 4 mean free paths (an albedo of 0.9
-        with g up to 0.88), and 6.7 for a white cloud of g = 0.85."""
+        g) (one transport mean free path), g the medium's smallest. So 2 where g <= 0.5 or L_d <=
+        4 mean free paths (an albedo of 0.9 with g up to 0.88), and 6.7 for a white cloud of g =
+        0.85."""
         skin = DIFFUSION_LENGTH_SHARE * self.diffusion_length()
         return float(max(MAX_TRANSPORT_DEPTH, min(MAX_REDUCED_DEPTH / (1.0 - self.g_min), skin)))
 
@@ -284,9 +285,9 @@ class Medium:
         return (f"{self.source}: the densest voxels are {tau:.3g} mean free paths across (albedo "
                 f"{self.albedo_min:.3g}, g {self.g_min:.2f}); light transport caps them at {cap:.3g} mean free "
                 "paths, less than the depth this medium reflects light from, so their scattered light leaks through "
-                "and the image comes out too dark (a slab of albedo 0.999 and g = 0.85 at 10 mean free paths per voxel: x0.61 / x0.72 of "
-                "Monte Carlo at 16 / 32 cells; docs/METHOD.md, \"Optically thick voxels\"); method.voxel_depth cuts "
-                "voxels up to 3 times finer")
+                "and the image comes out too dark (a slab of albedo 0.999 and g = 0.85 at 10 mean free paths per "
+                "voxel: x0.61 / x0.72 of Monte Carlo at 16 / 32 cells; docs/METHOD.md, \"Optically thick voxels\"); "
+                "method.voxel_depth cuts voxels up to 3 times finer")
 
     def transport_medium(self) -> "Medium":
         """The medium light transport solves (docs/METHOD.md, "Optically thick voxels"): this
