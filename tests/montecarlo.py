@@ -39,6 +39,15 @@ def _scatter(ux, uy, uz, g):
 
 
 @nb.njit(cache=True)
+def _scatter_mu(mu, g):
+    """The cosine to a slab's normal after an HG scattering event from cosine ``mu`` (in a
+    plane-parallel medium only that cosine matters: the new direction about a random azimuth)."""
+    ct = _sample_cos(g)
+    st = math.sqrt(max(0.0, 1.0 - ct * ct))
+    return mu * ct + math.sqrt(max(0.0, 1.0 - mu * mu)) * st * math.cos(2.0 * math.pi * np.random.random())
+
+
+@nb.njit(cache=True)
 def _roulette(w):
     if w < 1e-3:
         if np.random.random() < 0.1:
@@ -66,10 +75,7 @@ def _slab(tau, albedo, g, n, seed):
             w = _roulette(w * albedo)
             if w == 0.0:
                 break
-            # only the cosine to the slab normal matters: rotate it about a random azimuth
-            ct = _sample_cos(g)
-            st = math.sqrt(max(0.0, 1.0 - ct * ct))
-            mu = mu * ct + math.sqrt(max(0.0, 1.0 - mu * mu)) * st * math.cos(2.0 * math.pi * np.random.random())
+            mu = _scatter_mu(mu, g)
         t_sum += t_i
         t_sq += t_i * t_i
         r_sum += r_i
@@ -88,6 +94,41 @@ def slab_mc(tau, albedo, g, n_photons=200_000, seed=0):
     return {"T": t / n, "R": r / n, "A": a / n,
             "stderr_T": math.sqrt(max(t2 / n - (t / n) ** 2, 0) / n),
             "stderr_R": math.sqrt(max(r2 / n - (r / n) ** 2, 0) / n)}
+
+
+@nb.njit(cache=True)
+def _slab_fluence(mu0, albedo, g, depth, nbins, n, seed):
+    np.random.seed(seed)
+    acc = np.zeros(nbins)
+    dz = depth / nbins
+    for _ in range(n):
+        z, mu, w = 0.0, mu0, 1.0
+        while w > 0.0:
+            z1 = z + mu * (-math.log(1.0 - np.random.random()))
+            lo, hi = (z, min(z1, depth)) if mu > 0.0 else (max(z1, 0.0), z)
+            if mu != 0.0 and hi > lo:       # the flight's length in each depth bin
+                for b in range(int(lo / dz), min(int(hi / dz), nbins - 1) + 1):
+                    part = min(hi, (b + 1) * dz) - max(lo, b * dz)
+                    if part > 0.0:
+                        acc[b] += w * part / abs(mu)
+            if z1 <= 0.0 or z1 >= depth:
+                break
+            z = z1
+            w = _roulette(w * albedo)
+            if w == 0.0:
+                break
+            mu = _scatter_mu(mu, g)
+    return acc
+
+
+def slab_fluence_mc(mu0, albedo, g, depth, n_bins, n_photons=200_000, seed=0):
+    """Fluence inside a plane-parallel slab of optical thickness ``depth`` lit at its top by a
+    collimated beam of unit irradiance (normal to the beam) at cos ``mu0`` to the normal:
+    float64 (n_bins,), the mean fluence over each of n_bins equal layers from the top, in units
+    of the irradiance (the track length in each layer: the unscattered light alone gives
+    exp(-z / mu0) averaged over the layer)."""
+    acc = _slab_fluence(float(mu0), float(albedo), float(g), float(depth), int(n_bins), int(n_photons), int(seed))
+    return mu0 * acc / (n_photons * (depth / n_bins))
 
 
 @nb.njit(cache=True)

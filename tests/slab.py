@@ -1,9 +1,11 @@
 """Dense media as popvol scenes, for the dense-media tests and scripts/dense_slab.py: a front-lit
 slab, whose reflected radiance at the image centre is the plane-parallel albedo problem that
 tests/montecarlo.py's half_space_mc solves independently, and a cube filling its grid, whose
-single scattering cube_single_scattering integrates independently of popvol's fields."""
+single scattering cube_single_scattering integrates independently of popvol's fields, and a wide
+slab whose fluence inside is what slab_fluence_mc estimates."""
 import numpy as np
 
+import popvol
 from popvol import hg
 
 from popvol.camera import Camera
@@ -90,3 +92,22 @@ def cube_single_scattering(scene, n_tau=20000):
             out[py, px] = (np.sum(np.exp(-tau - sigma * s)) * tau_max / n_tau * med.albedo[0]
                            * hg.f_hg(-(d @ light.direction), med.g) * light.irradiance)
     return out
+
+
+def wide_slab_fluence(tau_voxel: float, albedo: float, g: float, n: int = 48, layers: int = 4,
+                      pad: int = 2) -> tuple[np.ndarray, float]:
+    """A slab n x n x ``layers`` voxels of 1/8 (``tau_voxel`` mean free paths each; wide enough
+    to stand for a plane-parallel one at its centre), ``pad`` empty voxels above it, lit by
+    LIGHT at unit irradiance and solved at n cells: (its fluence per unit irradiance, unscattered
+    and scattered, at the centre's voxels from the lit face down, float64 (layers,); the cap on
+    light transport, Medium.transport_depth_cap)."""
+    h = VOXEL
+    rho = np.zeros((n, n, layers + pad), np.float32)
+    rho[:, :, :layers] = 1.0
+    origin = np.array([-n / 16 + h / 2, -n / 16 + h / 2, -layers / 8 + h / 2])
+    med = Medium(rho, h, origin, scale=tau_voxel / h, albedo=albedo, g=g, source="slab")
+    cam = Camera([0.0, 0.0, 4.0], [0.0, 0.0, 0.0], [0, 1, 0], 6.0, 16, 16)
+    sol = popvol.solve(Scene(med, [DirectionalLight(LIGHT, 1.0)], cam, np.zeros(3), Method(resolution=n)))
+    c = slice(n // 2 - 2, n // 2 + 2)
+    phi = sol.direct[0, 0, c, c, :layers] + sol.phid[0, 0, c, c, :layers]
+    return phi.mean(axis=(0, 1), dtype=np.float64)[::-1], med.transport_depth_cap()

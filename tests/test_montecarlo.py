@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from montecarlo import chandrasekhar_h, cube_beam_mc, half_space_mc, slab_mc
+from montecarlo import chandrasekhar_h, cube_beam_mc, half_space_mc, slab_fluence_mc, slab_mc
 
 
 def test_slab_pure_absorber_is_beer_lambert():
@@ -52,3 +52,22 @@ def test_half_space_matches_chandrasekhar_isotropic():
     H0, H1 = chandrasekhar_h([mu0, mu], albedo)
     assert r["single"] == pytest.approx(first, rel=5 * r["stderr_single"] / first + 1e-3)
     assert r["total"] == pytest.approx(first * H0 * H1, rel=4 * r["stderr_total"] / r["total"] + 2e-3)
+
+
+def test_slab_fluence_of_a_pure_absorber_is_beer_lambert():
+    """Each layer's mean of exp(-z / mu0), in closed form."""
+    mu0, depth, n = 0.8, 3.0, 6
+    got = slab_fluence_mc(mu0, 0.0, 0.5, depth, n, n_photons=400_000, seed=4)
+    z = np.linspace(0.0, depth, n + 1)
+    exact = mu0 * (np.exp(-z[:-1] / mu0) - np.exp(-z[1:] / mu0)) / (depth / n)
+    np.testing.assert_allclose(got, exact, rtol=0.02)
+
+
+def test_slab_fluence_absorbs_what_the_slab_oracle_absorbs():
+    """sigma_a times the fluence's integral over depth is the power absorbed (per unit of the
+    power entering at normal incidence): the track-length estimate here against slab_mc's
+    collision estimate of the same slab, two different estimators of one quantity."""
+    depth, albedo, g, n = 2.0, 0.9, 0.7, 8
+    phi = slab_fluence_mc(1.0, albedo, g, depth, n, n_photons=200_000, seed=6)
+    absorbed = (1.0 - albedo) * phi.sum() * depth / n
+    assert absorbed == pytest.approx(slab_mc(depth, albedo, g, n_photons=200_000, seed=7)["A"], rel=0.01)
