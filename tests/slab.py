@@ -28,17 +28,19 @@ def slab_depth(tau_voxel: float, n: int = N) -> float:
 
 
 def slab_scene(tau_voxel: float, resolution: int, n: int = N, pad: int = 0, albedo: float = ALBEDO,
-               g: float = G) -> Scene:
-    """A slab of unit density, n x n x n/4 voxels of 1/8 (``tau_voxel`` mean free paths each),
-    its top face z = 0 seen straight down by a 16 x 16 camera whose centre pixels see only it.
-    ``pad``: layers of empty voxels above it, as a volume read from a file has (the density then
-    ramps from 1 to 0 between z = -1/16 and 1/16, the centres of the top full voxel and of the
-    first empty one: the same optical depth, and a plane-parallel medium's reflection depends on
-    its optical depths alone). ``albedo`` and ``g``: the medium's (ALBEDO and G by default)."""
-    rho = np.zeros((n, n, n // 4 + pad), np.float32)
-    rho[:, :, :n // 4] = 1.0
+               g: float = G, layers: int | None = None) -> Scene:
+    """A slab of unit density, n x n x ``layers`` voxels of 1/8 (``tau_voxel`` mean free paths
+    each; layers n/4 by default), its top face z = 0 seen straight down by a 16 x 16 camera
+    whose centre pixels see only it. ``pad``: layers of empty voxels above it, as a volume read
+    from a file has (the density then ramps from 1 to 0 between z = -1/16 and 1/16, the centres
+    of the top full voxel and of the first empty one: the same optical depth, and a
+    plane-parallel medium's reflection depends on its optical depths alone). ``albedo`` and
+    ``g``: the medium's (ALBEDO and G by default)."""
+    layers = n // 4 if layers is None else layers
+    rho = np.zeros((n, n, layers + pad), np.float32)
+    rho[:, :, :layers] = 1.0
     h = VOXEL
-    origin = np.array([-n / 16 + h / 2, -n / 16 + h / 2, -n / 32 + h / 2])
+    origin = np.array([-n / 16 + h / 2, -n / 16 + h / 2, -layers * h + h / 2])
     med = Medium(rho, h, origin, scale=tau_voxel / h, albedo=albedo, g=g, source="slab")
     cam = Camera([0.0, 0.0, 4.0], [0.0, 0.0, 0.0], [0, 1, 0], 6.0, 16, 16)
     return Scene(med, [DirectionalLight(LIGHT, 1.0)], cam, np.zeros(3), Method(resolution=resolution))
@@ -96,18 +98,12 @@ def cube_single_scattering(scene, n_tau=20000):
 
 def wide_slab_fluence(tau_voxel: float, albedo: float, g: float, n: int = 48, layers: int = 4,
                       pad: int = 2) -> tuple[np.ndarray, float]:
-    """A slab n x n x ``layers`` voxels of 1/8 (``tau_voxel`` mean free paths each; wide enough
-    to stand for a plane-parallel one at its centre), ``pad`` empty voxels above it, lit by
-    LIGHT at unit irradiance and solved at n cells: (its fluence per unit irradiance, unscattered
-    and scattered, at the centre's voxels from the lit face down, float64 (layers,); the cap on
-    light transport, Medium.transport_depth_cap)."""
-    h = VOXEL
-    rho = np.zeros((n, n, layers + pad), np.float32)
-    rho[:, :, :layers] = 1.0
-    origin = np.array([-n / 16 + h / 2, -n / 16 + h / 2, -layers / 8 + h / 2])
-    med = Medium(rho, h, origin, scale=tau_voxel / h, albedo=albedo, g=g, source="slab")
-    cam = Camera([0.0, 0.0, 4.0], [0.0, 0.0, 0.0], [0, 1, 0], 6.0, 16, 16)
-    sol = popvol.solve(Scene(med, [DirectionalLight(LIGHT, 1.0)], cam, np.zeros(3), Method(resolution=n)))
+    """:func:`slab_scene`, n x n x ``layers`` voxels (wide enough to stand for a plane-parallel
+    slab at its centre), lit by LIGHT at unit irradiance and solved at n cells: (its fluence per
+    unit irradiance, unscattered and scattered, at the centre's voxels from the lit face down,
+    float64 (layers,); the cap on light transport, Medium.transport_depth_cap)."""
+    scene = slab_scene(tau_voxel, n, n=n, pad=pad, albedo=albedo, g=g, layers=layers)
+    sol = popvol.solve(scene)
     c = slice(n // 2 - 2, n // 2 + 2)
     phi = sol.direct[0, 0, c, c, :layers] + sol.phid[0, 0, c, c, :layers]
-    return phi.mean(axis=(0, 1), dtype=np.float64)[::-1], med.transport_depth_cap()
+    return phi.mean(axis=(0, 1), dtype=np.float64)[::-1], scene.medium.transport_depth_cap()

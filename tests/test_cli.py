@@ -140,8 +140,8 @@ def test_missing_scene_and_unwritable_output(tmp_path):
     assert r.returncode == 2 and "does not exist" in r.stderr
 
 
-# 12 voxels across, each 2 mean free paths: no thicker, or light transport would cap them and, at the
-# procedural cloud's g of 0.85, render would warn of that too (tests/test_dense_slab.py)
+# 12 voxels across, each 2 mean free paths: well under what light transport caps (the procedural
+# cloud's Medium.transport_depth_cap, 6.7), where render would warn of that too (tests/test_dense_slab.py)
 TINY = MEDIUM.replace("16", "12")
 SMALL = "[camera]\nwidth = 16\nheight = 9\n[method]\nresolution = 8\n"
 
