@@ -8,7 +8,7 @@ import pytest
 
 import popvol
 import twins as ref
-from popvol import metrics, renderer
+from popvol import hg, metrics, renderer
 from popvol.pipeline import voxels_seen
 from popvol.scene import apply_overrides
 
@@ -204,10 +204,11 @@ def test_one_colour_sweep_is_the_rgb_sweep_of_one_channel():
     for w in dirs / np.linalg.norm(dirs, axis=1)[:, None]:
         outs = [np.zeros(grids[0].shape + (1,), np.float32) for _ in range(4)]
         norms = [np.zeros(grids[0].shape, np.float32) for _ in range(4)]
+        none = np.zeros(1)                                      # no light with a region's pattern
         KG._sweep(medium, lobes, grids, across_z, w, 0.7, outs[0], norms[0], np.array([0.3]), separated, 0.9,
-                  outs[2], norms[2])
+                  outs[2], norms[2], none)
         KG._sweep_one_colour(medium, lobes, grids, across_z, w, 0.7, outs[1], norms[1], 0.3, separated, 0.9,
-                             outs[3], norms[3])
+                             outs[3], norms[3], none)
         assert outs[0].max() > 0 and outs[2].max() > 0
         for got, expect in zip(outs[1::2] + norms[1::2], outs[::2] + norms[::2]):
             np.testing.assert_array_equal(got, expect)
@@ -233,18 +234,80 @@ def test_environment_enters_the_gather_through_the_grids_faces():
     from popvol.kernels.render import background_radiance
     scene = sky_scene()
     sol = popvol.solve(scene)
-    env, regions = renderer.gathered_environment(scene, sol)
+    env, regions, patterns = renderer.gathered_environment(scene, sol)
     assert regions.all() and env.shape == scene.environment.radiance.shape
     medium, lights = renderer.render_inputs(scene, sol)[:2]
+    assert np.array_equal(lights[5], sol.lobe_a0) and (lights[5] > 0).all()    # their unscattered lobes
     seen = voxels_seen(scene.medium.density)
     eye = np.asarray(scene.camera.origin, float)
-    got = renderer.gather(medium, lights, renderer.field_bundles(sol), eye, seen, 12, environment=env)
+    got = renderer.gather(medium, lights, renderer.field_bundles(sol), eye, seen, 12, environment=env,
+                          patterns=patterns)
     dirs, weights = renderer.gather_directions(12)
     boundary = np.array([background_radiance(env, -w) for w in dirs])
     expect = ref.gathered_source(scene, sol, dirs, weights, boundary)
     np.testing.assert_allclose(got, expect, rtol=2e-4, atol=1e-6 * expect.max())
-    closed = renderer.gather(medium, lights, renderer.field_bundles(sol), eye, seen, 12)
+    closed = renderer.gather(medium, lights, renderer.field_bundles(sol), eye, seen, 12, patterns=patterns)
     assert closed.sum() < 0.6 * got.sum()
+
+
+@pytest.mark.parametrize("H, g", [(64, 0.6), (64, 0.85), (128, 0.85)])
+def test_region_pattern_of_the_whole_sky_is_isotropic(H, g):
+    """A region that is the whole sky, of one radiance, sends its unscattered light every way
+    alike: what it scatters toward any direction is the phase function's integral over the
+    sphere, 1 / (4 pi) per steradian, whatever g (renderer.region_pattern, .pattern_table; a
+    map of 128 rows in blocks of 2 x 2 texels)."""
+    env = np.full((H, 2 * H, 3), 0.7, np.float32)
+    pattern = renderer.region_pattern(env, np.ones((H, 2 * H), bool))
+    assert len(pattern[1]) == 64 * 128 and pattern[1].sum() == pytest.approx(1.0)
+    w = np.random.default_rng(1).normal(size=(40, 3))
+    got = renderer.pattern_table([None, pattern], w / np.linalg.norm(w, axis=1)[:, None], g)
+    assert np.all(got[:, 0] == 0)
+    np.testing.assert_allclose(got[:, 1], 1 / (4 * np.pi), rtol=0.01)
+
+
+def test_region_pattern_of_a_cap_is_its_phase_integral():
+    """A region that is a cap of the sky 30 degrees across its axis a, of one radiance, lit
+    from by its texels, against the phase function integrated over the cap by quadrature in
+    polar angle and azimuth about a (independent of the map's texels): what it scatters toward
+    w is int_cap f_hg(-s . w; g) ds / Omega_cap, within 2 % at w along, across and against a."""
+    H, g = 64, 0.6
+    from popvol.envmap import texel_geometry
+    toward, _ = texel_geometry(H, 2 * H)
+    a = np.array([0.3, 0.8, -0.52])
+    a /= np.linalg.norm(a)
+    cap = np.radians(30.0)
+    pattern = renderer.region_pattern(np.ones((H, 2 * H, 3), np.float32), toward @ a >= np.cos(cap))
+    p_ = np.cross(a, [1.0, 0.0, 0.0])
+    p_ /= np.linalg.norm(p_)
+    q_ = np.cross(a, p_)
+    theta = (np.arange(400) + 0.5) * cap / 400
+    phi = (np.arange(400) + 0.5) * 2 * np.pi / 400
+    T, P = np.meshgrid(theta, phi, indexing="ij")
+    s_ = (np.cos(T)[..., None] * a + (np.sin(T) * np.cos(P))[..., None] * p_ + (np.sin(T) * np.sin(P))[..., None] * q_)
+    dA = np.sin(T) * (cap / 400) * (2 * np.pi / 400)
+    for w in (-a, a, p_, (-a + p_) / np.sqrt(2)):
+        expect = np.sum(hg.f_hg(np.clip(-(s_ @ w), -1, 1), g) * dA) / np.sum(dA)
+        got = renderer.pattern_table([pattern], w[None], g)[0, 0]
+        assert got == pytest.approx(expect, rel=0.02), w
+
+
+def test_regions_keep_their_unscattered_lobe_for_the_gather_alone():
+    """An environment region walked by the ordinates keeps its unscattered lobe in ``direct``
+    (Beer-Lambert along its direction; Solution.lobe_a0 its a0), a part of its phid, with phi and
+    phia 0: the samples do not scatter it once (Solution.single_scattering leaves the regions
+    nothing), and without the gather the image is what its whole walked light gives."""
+    scene = sky_scene()
+    sol = popvol.solve(scene)
+    a0 = np.array([light.a0 for light in scene.lights])
+    np.testing.assert_array_equal(sol.lobe_a0, a0)
+    assert (0 < a0).all() and (a0 < 1).all() and not sol.unscattered.any()
+    assert sol.direct.max() > 0 and not sol.phi.any() and not sol.phia.any()
+    assert np.all(sol.direct <= sol.phid * (1 + 1e-5) + 1e-7)
+    single = sol.single_scattering()
+    assert not single.direct.any() and not single.phi.any() and sol.direct.max() > 0
+    plain = popvol.render(apply_overrides(scene, gather=0), sol, jitter=False)
+    cut = dataclasses.replace(sol, direct=np.zeros_like(sol.direct), lobe_a0=None)
+    np.testing.assert_array_equal(popvol.render(apply_overrides(scene, gather=0), cut, jitter=False), plain)
 
 
 def test_grey_rgb_sweep_is_the_rgb_sweep():
@@ -258,7 +321,8 @@ def test_grey_rgb_sweep_is_the_rgb_sweep():
     seen = voxels_seen(scene.medium.density)
     _, _, medium, grids, across_z, lobes, colour, _ = renderer.gather_state(medium, lights, renderer.field_bundles(sol),
                                                                          seen, 1, True)
-    assert colour is None
+    patterns = renderer.gathered_environment(scene, sol)[2]
+    assert colour is None and (lobes[:, :, 3] >= KG.PATTERN).any()
     to_eye = KG.eye_directions(medium, np.asarray(scene.camera.origin, np.float64), grids[4])
     grids, across_z = grids + (to_eye,), across_z + (renderer.z_first(to_eye),)
     dirs = np.array([[1.0, 0, 0], [0, -1.0, 0], [0, 0, 1.0], [0.6, -0.64, 0.48], [-0.3, 0.2, -0.93]])
@@ -268,10 +332,12 @@ def test_grey_rgb_sweep_is_the_rgb_sweep():
         outs = [np.zeros(grids[0].shape + (3,), np.float32) for _ in range(4)]
         norms = [np.zeros(grids[0].shape, np.float32) for _ in range(4)]
         entering = np.array([0.2, 0.3, 0.4])
+        # the regions' unscattered lobes, in their patterns toward w
+        pattern = renderer.pattern_table(patterns, w[None], 0.6)[0]
         KG._sweep(medium, lobes, grids, across_z, w, 0.7, outs[0], norms[0], entering, separated, 0.9, outs[2],
-                  norms[2])
+                  norms[2], pattern)
         KG._sweep_grey(medium, lobes, grids, across_z, w, 0.7, outs[1], norms[1], entering, separated, 0.9, outs[3],
-                       norms[3])
+                       norms[3], pattern)
         assert outs[0].max() > 0 and outs[2].max() > 0
         for got, expect in ((outs[1], outs[0]), (outs[3], outs[2])):
             np.testing.assert_allclose(got, expect, rtol=1e-5, atol=1e-7 * expect.max())
@@ -279,22 +345,24 @@ def test_grey_rgb_sweep_is_the_rgb_sweep():
         np.testing.assert_array_equal(norms[3], norms[2])
 
 
-@pytest.mark.parametrize("g, scale, within, mean_within", [(0.6, 2.0, 0.02, 0.01), (0.6, 30.0, 0.05, 0.03),
-                                                         (0.85, 2.0, 0.05, 0.01), (0.85, 100.0, 0.16, 0.05)])
-def test_uniform_environment_keeps_a_white_medium_at_its_radiance(g, scale, within, mean_within):
+@pytest.mark.parametrize("g, scale, lights, within, mean_within", [
+    (0.6, 2.0, 8, 0.02, 0.01), (0.6, 30.0, 32, 0.05, 0.03), (0.85, 2.0, 8, 0.02, 0.01), (0.85, 2.0, 32, 0.02, 0.01),
+    (0.85, 100.0, 32, 0.16, 0.05)])
+def test_uniform_environment_keeps_a_white_medium_at_its_radiance(g, scale, lights, within, mean_within):
     """In an isotropic radiance field L0 a medium that absorbs nothing changes nothing: every
     ray leaves it with L0, whatever its density and phase function (the equilibrium of the
-    transport equation). A cloud of albedo 1 under a uniform sky of L0 = 1, split into 32 lights,
-    renders every pixel that sees it at 1 (mean (min-max) measured, `python
+    transport equation). A cloud of albedo 1 under a uniform sky of L0 = 1, split into 8 or 32
+    lights, renders every pixel that sees it at 1 (mean (min-max) measured, `python
     scripts/white_medium.py`): with g = 0.6 within 2 % at an optical depth of 2 along the view
-    (0.999 (0.995-1.000)) and within 5 % at 30 (0.982 (0.955-1.000); voxels of 3.75 mean free
-    paths, capped at 2.5 for light transport); with g = 0.85 within 5 % at 2 (0.991
-    (0.954-1.003)). A regression guard where the walk is known to be dark, g = 0.85 on voxels of
-    12.5 mean free paths (capped at 6.7, one transport mean free path): 0.954 (0.847-1.019), its
-    inner pixels the dark ones (docs/METHOD.md, "Optically thick voxels"). With the sky's 8
-    lights instead of 32 the sky's own split darkens it: g = 0.6 at 30 0.976 (0.917-1.008), g =
-    0.85 at 2 0.964 (0.875-0.999) (docs/METHOD.md, "Environment lights")."""
-    scene = sky_scene((1.0, 1.0, 1.0), (1.0, 1.0, 1.0), (1.0, 1.0, 1.0), lights=32, albedo=1.0, g=g, scale=scale,
+    (8 lights: 1.001 (0.993-1.015)) and within 5 % at 30 (32 lights: 0.982 (0.959-1.000); voxels
+    of 3.75 mean free paths, capped at 2.5 for light transport); with g = 0.85 within 2 % at 2
+    (8 lights: 0.996 (0.985-1.000); 32: 0.999 (0.989-1.001)). Each region's unscattered lobe is
+    gathered in its region's own pattern (docs/METHOD.md Eq. 26a); one HG lobe per region for
+    all its light left g = 0.85 at 2 with 8 lights at 0.964 (0.875-0.999) and with 32 at 0.991
+    (0.954-1.003). A regression guard where the walk is known to be dark, g = 0.85 on voxels of
+    12.5 mean free paths (capped at 6.7, one transport mean free path): 0.955 (0.854-1.018), its
+    inner pixels the dark ones (docs/METHOD.md, "Optically thick voxels")."""
+    scene = sky_scene((1.0, 1.0, 1.0), (1.0, 1.0, 1.0), (1.0, 1.0, 1.0), lights=lights, albedo=1.0, g=g, scale=scale,
                       resolution=16)
     scene = apply_overrides(scene, resolution=16, gather=64)
     img = popvol.render(scene, popvol.solve(scene))

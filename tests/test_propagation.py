@@ -92,7 +92,10 @@ def test_collimated_beam_fluence_follows_beer_lambert(solver):
 def test_direct_fluence_is_beer_lambert_with_sigma_t():
     """A scattering slab (sigma_t varies along the light): the unscattered light at a cell centre
     is exp(-tau), tau = sigma_t integrated from the face (scattering removes it from the direct
-    beam, though the walk's transmittance keeps it); an environment light (a0 < 1) has none."""
+    beam, though the walk's transmittance keeps it). A broad lobe (a0 < 1, an environment's
+    light) walked by the ordinates keeps its unscattered part too, the same Beer-Lambert, as a
+    lobe of mean cosine a0 (for the gathered last bounce, docs/METHOD.md Eq. 26a); walked by the
+    one-lobe sweeps it has none."""
     n, voxel = 16, 0.25
     rho = np.broadcast_to(np.linspace(0.5, 2.0, n, dtype=np.float32)[None, ::-1, None], (n, n, n)).copy()
     med = Medium(rho, voxel, np.full(3, voxel / 2), scale=1.5, albedo=0.9, g=0.7)
@@ -103,7 +106,11 @@ def test_direct_fluence_is_beer_lambert_with_sigma_t():
     np.testing.assert_allclose(ds.direct[:, n // 2, n // 3], expected, rtol=1e-5)
     assert np.all(ds.direct <= ds.result.phi * (1 + 1e-5))             # a part of the walk's light
     soft = DirectionalLight([0.0, -1.0, 0.0], [1.0, 1.0, 1.0], a0=0.6)
-    assert solve_light(med, soft, Method(resolution=n)).direct is None
+    broad = solve_light(med, soft, Method(resolution=n))
+    assert broad.result.direct_a0 == 0.6 and ds.result.direct_a0 == 1.0
+    np.testing.assert_allclose(broad.direct[:, n // 2, n // 3], expected, rtol=1e-5)
+    assert np.all(broad.direct <= broad.result.phi * (1 + 1e-5))
+    assert solve_light(med, soft, Method(resolution=n, solver="sweep")).direct is None
 
 
 # -- Numba kernels against their NumPy twins ---------------------------------------------------

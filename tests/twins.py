@@ -572,24 +572,53 @@ def _voxel_centres(med):
     return med.origin + np.moveaxis(np.indices(med.shape), 0, -1) * med.voxel_size
 
 
-def _grid_lit(scene, solution, d):
+def _grid_lit(scene, solution, d, patterns=False):
     """L_s / sigma_s (nx, ny, nz, 3) at the voxel centres along the rays d (nx, ny, nz, 3) of
-    the terms lit on the medium's grid (the suns' walk lobes, every diffuse lobe)."""
+    the terms lit on the medium's grid (the suns' walk lobes, every diffuse lobe). With
+    ``patterns`` (the gathered last bounce's rule), an environment region whose walk kept its
+    unscattered lobe (Solution.lobe_a0 > 0), in a medium of one g, is lit by that lobe in its
+    region's pattern (:func:`region_pattern_lit`) and by the rest of its light as one lobe about
+    the rest's flux."""
     med = scene.medium
     g = med.g.astype(np.float64) if med.g_per_voxel else np.full(med.shape, float(med.g))
     n_ch = solution.phi.shape[1]
     out = np.zeros(med.shape + (3,))
     for l in range(len(solution.is_point)):
+        region = (patterns and solution.lobe_a0 is not None and solution.lobe_a0[l] > 0
+                  and not med.g_per_voxel)
         for c in range(n_ch):
             val = np.zeros(med.shape)
             if not solution.is_point[l]:
                 mu = -(d @ solution.directions[l])
                 val += walk_lobes(solution.phi[l, c], solution.phia[l, c], solution.direct[l, c], mu, g)
-            if solution.phid.shape[0]:
+            if region:
+                pd = solution.phid[l, c].astype(np.float64)
+                pu = np.clip(solution.direct[l, c], 0.0, np.maximum(pd, 0.0))
+                J = np.moveaxis(solution.flux[l, c], 0, -1) - (solution.lobe_a0[l] * pu)[..., None] * \
+                    solution.directions[l]
+                val += pu * region_pattern_lit(scene, l, d, float(med.g))
+                val += diffuse_lobe(pd - pu, J, d, g, 1.0)
+            elif solution.phid.shape[0]:
                 val += diffuse_lobe(solution.phid[l, c], np.moveaxis(solution.flux[l, c], 0, -1), d, g,
                                     solution.lobe_cap[l])
             out += val[..., None] * _power(solution, l, c, n_ch)
     return out
+
+
+def region_pattern_lit(scene, l, d, g):
+    """(d's shape without its last axis): what a unit fluence of environment region l's
+    unscattered light scatters along the rays d (..., 3), per steradian: the region's texels'
+    luminance times solid angle, normalised to sum to 1, each scattering its light (travelling
+    away from its texel's direction) by f_hg into -d. Texel by texel (docs/METHOD.md Eq. 26a)."""
+    from popvol.envmap import texel_geometry
+    env = scene.environment.radiance.astype(np.float64)
+    toward, omega = texel_geometry(*env.shape[:2])
+    mask = scene.lights[l].texels
+    w = (0.2126 * env[..., 0] + 0.7152 * env[..., 1] + 0.0722 * env[..., 2]) * omega * mask
+    w, travel = w[mask], -toward[mask]
+    rays, where = np.unique(-np.asarray(d, np.float64).reshape(-1, 3), axis=0, return_inverse=True)
+    val = np.array([np.sum(w * hg.f_hg(np.clip(travel @ x, -1.0, 1.0), g)) for x in rays]) / w.sum()
+    return val[where.ravel()].reshape(np.shape(d)[:-1])
 
 
 def _bilinear_slice(buf, u, v):
@@ -717,7 +746,8 @@ def gathered_source(scene, solution, dirs, weights, boundary=None, sun="default"
         apart = np.where(rho[..., None] > 0, _unscattered_lit(solution, sun), 0.0)
         q_sun = sig * (alb[..., None] * alb_rgb) * apart
     for w, wt, entering in zip(dirs, weights, boundary):
-        J = np.where(rho[..., None] > 0, _grid_lit(scene, solution, np.broadcast_to(-w, med.shape + (3,))), 0.0)
+        J = np.where(rho[..., None] > 0, _grid_lit(scene, solution, np.broadcast_to(-w, med.shape + (3,)),
+                                                   patterns=True), 0.0)
         f = wt * hg.f_hg(np.clip(to_eye @ w, -1.0, 1.0), g)
         if sun is not None:
             f_sun = hg.f_hg(w @ d_sun, g_sun)

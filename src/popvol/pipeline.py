@@ -73,9 +73,10 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     read = domain.cells_read(medium, seen_voxels(medium)) if method.solver == "ordinates" else None
     t1 = time.perf_counter()
     walk = domain.walk(optics, method, progress, read)
-    if transport is not medium and walk.direct is not None:
+    if transport is not medium and walk.direct is not None and light.unscattered:
         # the unscattered light crosses the true density (docs/METHOD.md, "Optically thick voxels");
         # the walk's own, through the capped density, is kept for the gathered last bounce (Eq. 25g)
+        # (an environment region's unscattered lobe is read by that alone: it keeps the walk's)
         capped = walk.direct
         replace_direct(walk, domain.direct_fluence(domain.resample(medium, channel)[0]))
         walk.direct_transport = capped
@@ -97,6 +98,18 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     elif warm is not None:
         ds.warm_note = "cold: no diffusion stage (the walk always starts cold)"
     return ds
+
+
+def region_lobes(sols: list, n_lights: int) -> np.ndarray:
+    """float64 (n_lights,): each light's a0 where its domains kept a broad lobe's unscattered
+    part in ``direct`` (an environment region walked by the ordinates: WalkResult.direct_a0 <
+    1; Solution.lobe_a0), else 0."""
+    out = np.zeros(n_lights)
+    for ds in sols:
+        r = ds.result
+        if r.direct is not None and r.direct_a0 < 1.0 and r.flux is not None:
+            out[ds.light_index] = r.direct_a0
+    return out
 
 
 def side_by_side(cells: list[int], threads: int | None = None, memory: float | None = None) -> int:
@@ -144,22 +157,25 @@ def ordinate_fields(walk, dom, medium, needed, outs, phid, flux) -> None:
     a delta along the light) and the rest, phi - phi_dir (at least 0) with first moment
     F - phi_dir d, as one lobe about its own moment in ``phid`` and ``flux`` (float32 (3, nx,
     ny, nz), world frame), which the renderer lights with the diffuse lobe capped at 1 (the
-    walk has no diffusion stage). An environment's light has no unscattered part (``walk.direct``
-    None): its ``outs`` are left as they are (zeros) and only the rest is mapped."""
+    walk has no diffusion stage). A broad lobe's unscattered part (an environment's light,
+    ``walk.direct_a0`` < 1) is no delta lobe: phid and flux keep all its light, and its
+    unscattered part goes to outs[2] (phi_dir) alone, for the gathered last bounce (Eq. 26a);
+    without one (``walk.direct`` None) its ``outs`` are left as they are (zeros)."""
     direct = walk.direct
     F = walk.flux
-    if direct is None:
-        rest = np.maximum(walk.phi, 0.0)
-    else:
+    collimated = direct is not None and walk.direct_a0 == 1.0
+    if collimated:
         rest = np.maximum(walk.phi - direct, 0.0)
         F = F.copy()
         F[0] -= direct
+    else:
+        rest = np.maximum(walk.phi, 0.0)
     Fw = frame_to_world(dom.frame, F)
     fields, targets = (rest, Fw[0], Fw[1], Fw[2]), (phid, flux[0], flux[1], flux[2])
     if direct is not None:
         fields, targets = (direct,) + fields, (outs[2],) + targets
     domain_to_world(fields, dom.frame, dom.origin, dom.h, medium.origin, medium.voxel_size, targets, needed)
-    if direct is not None:
+    if collimated:
         outs[0][...] = outs[2]
         outs[1][...] = outs[2]
 
@@ -411,6 +427,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                     positions=np.array([l.render_position for l in lights], np.float64).reshape(-1, 3),
                     is_point=np.array([l.fields_in_domain for l in lights], np.bool_),
                     unscattered=np.array([l.unscattered for l in lights], np.bool_),
+                    lobe_a0=region_lobes(sols, n),
                     irradiance=np.array([l.power for l in lights], np.float64).reshape(-1, 3),
                     points=point_fields(sols, n, n_ch), phid=phid, flux=flux, seconds=seconds, key=key,
                     lobe_cap=lobe_cap)

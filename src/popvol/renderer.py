@@ -7,6 +7,8 @@ import numba
 import numpy as np
 
 from . import hg
+from .envmap import texel_geometry
+from .io.images import luminance
 from .errors import PopvolError
 from .kernels.gather import emission_lobes, eye_directions, gathered_source
 from .kernels.render import EDGE_DEPTH, background_radiance, render_kernel, substeps
@@ -102,15 +104,21 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     medium = (med.density, np.asarray(med.scale, np.float64), albedo, albedo_rgb, med.g_grid(),
               med.origin, med.voxel_size, lo, hi, blocks, BLOCK_BITS,
               med.derived("occupied_cells", occupied_cells) if skip else NO_CELLS)
-    lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
-              np.ascontiguousarray(solution.irradiance, np.float64),
-              np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_))
     camera = (cam.origin, cam.basis(), float(np.tan(np.radians(cam.fov) / 2)), int(cam.width),
               int(cam.height))
     gather_on = m.gather > 0 and not solution.single
-    environment, regions = (gathered_environment(scene, solution) if gather_on
-                            else (None, np.zeros(len(solution.unscattered), bool)))
+    environment, regions, patterns = (gathered_environment(scene, solution) if gather_on
+                                      else (None, np.zeros(len(solution.unscattered), bool), None))
     gathering = gather_on and bool((solution.unscattered | regions).any())
+    # the regions whose unscattered lobe the gather emits with their pattern (Eq. 26a): where the
+    # walk kept it apart and g is one number (the pattern is tabulated for it)
+    lobe_a0 = np.zeros(len(solution.unscattered))
+    if gathering and patterns is not None and solution.lobe_a0 is not None and med.g_grid().size == 1:
+        lobe_a0 = np.where(regions, solution.lobe_a0, 0.0)
+    lights = (solution.is_point, np.ascontiguousarray(solution.directions, np.float64),
+              np.ascontiguousarray(solution.irradiance, np.float64),
+              np.ascontiguousarray(solution.positions, np.float64), np.asarray(solution.unscattered, np.bool_),
+              np.ascontiguousarray(lobe_a0, np.float64))
     if gathering:
         # the scattered light toward the camera gathered on the grid from the lights with an
         # unscattered part and the regions of an environment map, whose first scattering is the
@@ -128,14 +136,16 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
         # made once per fields, medium and lights and kept with the solution (Solution.cache):
         # a camera move gathers again from it
         fields = grid[:5] + spherical[:1]
-        key = ("gather", factor, medium_key(transport), tuple(map(id, fields)), own.tobytes(), lights[2].tobytes())
+        key = ("gather", factor, medium_key(transport), tuple(map(id, fields)), own.tobytes(), lights[2].tobytes(),
+               lights[5].tobytes())
         kept = solution.cache.get("gather")
         if kept is None or kept[0] != key:
             # holding the medium and the fields keeps the ids in the key theirs
             kept = (key, (transport, fields), gather_state(*args))
             solution.cache["gather"] = kept
+        kept_patterns = None if patterns is None else [patterns[i] for i in np.flatnonzero(own)]
         gathered = gather(*args[:3], eye, seen, m.gather, factor, gather_cap(cam), state=kept[2],
-                          environment=environment)
+                          environment=environment, patterns=kept_patterns)
         if not own.all():                 # the others' light, all of it, from their lobes
             others, (others_grid, others_spherical) = only_lights(~own, lights, grid, spherical)
             in_scattering_source(medium, others, others_grid, others_spherical, eye, seen, gathered,
@@ -288,18 +298,19 @@ def gather_cap(camera) -> tuple[np.ndarray, float]:
     return -camera.basis()[0], float(min(half_diagonal + GATHER_CAP_MARGIN, np.radians(120.0)))
 
 
-def gathered_environment(scene, solution) -> tuple[np.ndarray | None, np.ndarray]:
+def gathered_environment(scene, solution) -> tuple[np.ndarray | None, np.ndarray, list | None]:
     """(the environment map whose light the gather lets in through the grid's faces, float32
     (H, 2H, 3); bool (n_lights,), the lights it stands for: the map's median-cut regions,
-    ``DirectionalLight.map_region``, not its sun). Each region's texels are scaled by its
+    ``DirectionalLight.map_region``, not its sun; per light, its region's pattern
+    (:func:`region_pattern`) or None). Each region's texels are scaled by its
     light's power in the solution over the power the scene gives it (1 but where the solution
-    was relit). (None, all False) where the scene has no such light, or the solution is not
+    was relit). (None, all False, None) where the scene has no such light, or the solution is not
     of the scene's lights. The map is made once per map and powers and kept with the solution
     (``Solution.cache``), so that a camera move does not make it again."""
     n = len(solution.unscattered)
     regions = np.array([getattr(light, "map_region", False) for light in scene.lights], bool)
     if scene.environment is None or not regions.any() or len(regions) != n:
-        return None, np.zeros(n, bool)
+        return None, np.zeros(n, bool), None
     env = scene.environment.radiance
     scales = []
     for i in np.flatnonzero(regions):
@@ -313,14 +324,64 @@ def gathered_environment(scene, solution) -> tuple[np.ndarray | None, np.ndarray
         for i, scale in zip(np.flatnonzero(regions), scales):
             texels = scene.lights[i].texels
             out[texels] += (env[texels] * scale).astype(np.float32)
+        patterns = [region_pattern(env, light.texels) if region else None
+                    for light, region in zip(scene.lights, regions)]
         # holding the map and the texels keeps the ids in the key theirs
-        kept = (key, (env, [scene.lights[i].texels for i in np.flatnonzero(regions)]), out)
+        kept = (key, (env, [scene.lights[i].texels for i in np.flatnonzero(regions)]), (out, patterns))
         solution.cache["environment"] = kept
-    return kept[2], regions
+    return kept[2][0], regions, kept[2][1]
+
+
+#: a region's pattern (:func:`region_pattern`) takes the map in blocks of texels, at most this
+#: many texels tall (a sky of 64 rows texel by texel)
+PATTERN_ROWS = 64
+
+
+def region_pattern(env: np.ndarray, texels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The angular pattern of an environment region's light (docs/METHOD.md Eq. 26a): (omega
+    float64 (T, 3), the directions its light travels, -w for the directions w toward the sky;
+    p float64 (T,), their shares of its luminance lum(L) dOmega, summing to 1), from ``env``
+    float32 (H, W, 3) at the region's ``texels`` bool (H, W), in blocks of b x b texels (b =
+    ceil(H / PATTERN_ROWS)), each as its luminance-weighted mean direction."""
+    H, W = env.shape[:2]
+    d, omega = texel_geometry(H, W)
+    lum = luminance(env.astype(np.float64)) * omega * texels
+    b = -(-H // PATTERN_ROWS)
+    if b > 1:                   # zero-weight texels pad the map to whole blocks
+        pad = ((0, -H % b), (0, -W % b))
+        lum = np.pad(lum, pad)
+        m = np.pad(d, pad + ((0, 0),)) * lum[..., None]
+        h, w = lum.shape[0] // b, lum.shape[1] // b
+        m = m.reshape(h, b, w, b, 3).sum(axis=(1, 3)).reshape(-1, 3)
+        lum = lum.reshape(h, b, w, b).sum(axis=(1, 3)).ravel()
+    else:
+        m, lum = d.reshape(-1, 3), lum.ravel()
+    keep = lum > 0
+    dirs = m[keep] / np.linalg.norm(m[keep], axis=1)[:, None]
+    p = lum[keep]
+    return -dirs, p / p.sum()
+
+
+def pattern_table(patterns, dirs: np.ndarray, g: float) -> np.ndarray:
+    """float64 (N, n_lights): for each gather direction w_i (``dirs`` float64 (N, 3)) and light
+    l, what a unit fluence of its region's unscattered light scatters toward w_i, per
+    steradian (docs/METHOD.md Eq. 26a): sum_t p_t f_hg(omega_t . w_i; g) over its pattern
+    (:func:`region_pattern`; ``patterns`` one per light, None for a light without one: 0 there,
+    or ``patterns`` None: no column read)."""
+    out = np.zeros((len(dirs), max(len(patterns or ()), 1)))
+    for l, pattern in enumerate(patterns or ()):
+        if pattern is not None:
+            omega, p = pattern
+            for t in range(0, len(p), 4096):         # in chunks: little memory
+                o = omega[t:t + 4096]
+                # by elementwise products, not BLAS (domains.frame_to_world says why)
+                mu = dirs[:, 0, None] * o[:, 0] + dirs[:, 1, None] * o[:, 1] + dirs[:, 2, None] * o[:, 2]
+                out[:, l] += (hg.f_hg(np.clip(mu, -1.0, 1.0), g) * p[t:t + 4096]).sum(axis=1)
+    return out
 
 
 def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 1, cap=None,
-           state: tuple | None = None, environment=None) -> np.ndarray:
+           state: tuple | None = None, environment=None, patterns=None) -> np.ndarray:
     """float32 (nx, ny, nz, 3): the scattered light gathered toward the camera at ``eye`` from
     ``n_directions`` directions (kernels/gather.py), where ``seen``; 0 elsewhere.
 
@@ -334,7 +395,9 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     :func:`gather_state` makes of the same medium, lights, bundles, seen and factor, if the
     caller kept it (it does not depend on the camera). ``environment``: the map whose light
     enters the grid (:func:`gathered_environment`), float32 (H, 2H, 3), or None: nothing
-    enters; the radiance arriving along a direction w is the map's from -w."""
+    enters; the radiance arriving along a direction w is the map's from -w. ``patterns``: per
+    light of ``lights``, its region's pattern (:func:`region_pattern`) or None, for the lights
+    whose unscattered lobe is gathered with it (``lights``' lobe_a0 > 0; None: no such light)."""
     box, seen_box, medium, grids, across_z, lobes, colour, sun = state or gather_state(
         medium, lights, bundles, seen, factor, environment is not None)
     needed = grids[4]
@@ -351,8 +414,11 @@ def gather(medium, lights, bundles, eye, seen, n_directions: int, factor: int = 
     out_sun = np.zeros((lanes,) + apart_shape + out.shape[4:], np.float32)
     norm_sun = np.zeros((lanes,) + apart_shape, np.float32)
     to_eye = eye_directions(medium, eye, needed)
+    if patterns is None and np.any(lights[5] > 0):
+        raise ValueError("gather: lights with a region's pattern (lobe_a0 > 0) need their patterns")
+    pattern = pattern_table(patterns, dirs, float(medium[4].flat[0]))
     gathered_source(medium, lobes, grids + (to_eye,), across_z + (z_first(to_eye),), dirs, weights, out, norm,
-                    boundary, sun, out_sun, norm_sun)
+                    boundary, sun, out_sun, norm_sun, pattern)
     norm = norm.sum(axis=0, dtype=np.float64)
     light = out.sum(axis=0, dtype=np.float64) / np.where(norm > 0, norm, 1.0)[..., None]
     if apart:
@@ -428,8 +494,8 @@ def separated_sun(medium, lights, lobes) -> tuple[np.ndarray, np.ndarray, float]
     n_ch = lobes.shape[1] // (3 * len(lights[0]))
     best, best_power = None, 0.0
     for l in range(len(lights[0])):
-        if lights[0][l]:                            # a point light's axis turns from cell to cell
-            continue
+        if lights[0][l] or not lights[4][l]:        # a point light's axis turns from cell to cell;
+            continue                                # an environment's light has no delta lobe
         kinds = [3 * (l * n_ch + c) for c in range(n_ch)]
         power = float(np.sum(lobes[:, kinds, 4:], dtype=np.float64))
         if power > best_power:

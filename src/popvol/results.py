@@ -64,6 +64,10 @@ class WalkResult:
     (the six-ordinate walk only; phia is then its component along the axis d). A six-ordinate
     walk given the cells read leaves phi, phia and flux 0 in the empty cells it crossed
     without visits (walk.skipped_cells); ``direct`` is the unscattered light everywhere.
+    direct_a0: the mean cosine of the unscattered light's lobe about the light's direction: 1
+    for a collimated sun; an environment region's a0 where its ordinates' walk keeps its
+    unscattered lobe in ``direct`` (Beer-Lambert along the region's direction, a part of phi;
+    docs/METHOD.md Eq. 26a).
     direct_transport: float32 (domain shape), where the walk solved a capped medium
     (medium.transport_medium) and ``direct`` was swapped for the unscattered light through the
     true density (walk.replace_direct): the walk's own, through the capped density, which the
@@ -84,6 +88,7 @@ class WalkResult:
     seconds: float = 0.0
     solver: str = "sweep"
     direct: np.ndarray | None = None
+    direct_a0: float = 1.0
     handed: np.ndarray | None = None
     diffusion: object = None
     seconds_diffusion: float = 0.0
@@ -172,7 +177,9 @@ class Solution:
     diffuse light's fluence, and flux: float32 (n_lights, n_channels, 3, nx, ny, nz), its
     world-space flux vector J (arrays with n_lights = 0 without the diffusion stage or the
     six-ordinate walk, whose scattered light they hold: docs/METHOD.md, "Six ordinates").
-    All fields are 0 at voxels the renderer never reads (pipeline.voxels_seen).
+    All fields are 0 at voxels the renderer never reads (pipeline.voxels_seen). An
+    environment region walked by the ordinates keeps its unscattered lobe in ``direct`` (a part
+    of its phid, its phi and phia 0; ``lobe_a0``), which the gathered last bounce alone reads.
     """
 
     medium: object
@@ -196,6 +203,8 @@ class Solution:
     #                          gathers no further scattering from it
     unscattered: np.ndarray | None = None   # bool (n_lights,): the light's unscattered part is
     #                          in ``direct`` (Light.unscattered; None: every light's)
+    lobe_a0: np.ndarray | None = None   # float64 (n_lights,): an environment region's a0 where
+    #                          ``direct`` holds its unscattered lobe, a part of phid (Eq. 26a); else 0
     cache: dict = field(default_factory=dict, repr=False, compare=False)   # what the renderer
     #                          makes of these fields for any camera, kept for the next frame:
     #                          name -> (key, what the key's ids belong to, value), e.g.
@@ -221,9 +230,13 @@ class Solution:
         2``), whatever ``method.gather`` says. Environment lights (a0 < 1) have no direct part,
         so they give nothing here."""
         fields = np.repeat(self.points.fields[2:3], 3, axis=0)     # rows phi, phia := phi_dir
-        return dataclasses.replace(self, phi=self.direct, phia=self.direct,
+        direct = self.direct
+        if self.lobe_a0 is not None and np.any(self.lobe_a0 > 0):
+            # an environment region's unscattered lobe is not a delta lobe along its direction
+            direct = direct * (self.lobe_a0 <= 0)[:, None, None, None, None].astype(direct.dtype)
+        return dataclasses.replace(self, phi=direct, phia=direct, direct=direct,
                                    phid=_empty(0, *self.phid.shape[1:]), flux=_empty(0, *self.flux.shape[1:]),
-                                   points=dataclasses.replace(self.points, fields=fields), single=True)
+                                   points=dataclasses.replace(self.points, fields=fields), single=True, lobe_a0=None)
 
     @property
     def nbytes(self) -> int:

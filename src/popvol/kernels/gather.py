@@ -39,6 +39,11 @@ and its light scattered toward the camera as
 f_i = f_hg(d_s . w_i; g), p_i = f_hg(w_i . w_o; g): the two lobes integrated exactly, the
 quadrature averaging only the transported light D (docs/METHOD.md Eq. 25e).
 
+An environment region's unscattered lobe (``direct``, where ``lights``' lobe_a0 > 0) emits in
+its region's own pattern, a number per region and direction (``pattern``, renderer.pattern_table),
+and the rest of its walked light as one lobe about the rest's flux (:func:`region_lobes`;
+docs/METHOD.md Eq. 26a).
+
 So the second scattering toward the camera is transported, not modelled: near a free surface
 little light arrives from outside, which one lobe per cell cannot say. What the renderer then
 adds per sample is the single scattering (Solution.single_scattering()). ``out`` holds it toward
@@ -53,8 +58,15 @@ import numba as nb
 import numpy as np
 
 from . import ON_ITS_OWN
-from .render import (DIRECTION, FIELDS, FLUX, FULL, LOBE_CAP, OFFSET, PHI, PHID, POSITION, POWER,
-                     SHAPE, diffuse_lobe_axis, f_hg, grid_fields, light_geometry, point_lookup, walk_lobe_weights)
+from .render import (DIRECT, DIRECTION, FIELDS, FLUX, FULL, LOBE_A0, LOBE_CAP, OFFSET, PHI, PHID, POSITION, POWER,
+                     SHAPE, _clamp_g, diffuse_lobe_axis, f_hg, grid_fields, light_geometry, point_lookup,
+                     walk_lobe_weights)
+from .sampling import interpolate
+
+
+#: a lobe whose g is PATTERN + j or more is light of angular pattern j (column j of
+#: gathered_source's ``pattern``), not an HG lobe
+PATTERN = 8.0
 
 
 @nb.njit(inline="always", cache=True)
@@ -138,6 +150,28 @@ def mean_radial_cosine(r, R, M):
     return r / (R * R * R * M)
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def region_lobes(direct, phid, flux, corners, g, a0, axis):
+    """An environment region's walked light at the stencil ``corners`` as two lobes (docs/METHOD.md,
+    "Environment lights", Eq. 26a): (phi_u, the unscattered fluence ``direct``, taken at most
+    phid, whose light the caller scatters with the region's pattern; then the rest, phid - phi_u,
+    as :func:`~popvol.kernels.render.diffuse_lobe_axis` gives it, about its own flux J - a0 phi_u
+    ``axis``: weight, axis (3 numbers), g A_rest, A_rest = min(|J_rest| / (phid - phi_u), 1)).
+    The unscattered light is a lobe of mean cosine a0 about ``axis``, the light's direction."""
+    pd = interpolate(phid, corners)
+    if pd <= 0.0:
+        return 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
+    pu = min(max(interpolate(direct, corners), 0.0), pd)
+    jx = interpolate(flux[0], corners) - a0 * pu * axis[0]
+    jy = interpolate(flux[1], corners) - a0 * pu * axis[1]
+    jz = interpolate(flux[2], corners) - a0 * pu * axis[2]
+    rest = pd - pu
+    jn = math.sqrt(jx * jx + jy * jy + jz * jz)
+    if rest <= 0.0 or jn <= 0.0:
+        return pu, rest, 0.0, 0.0, 1.0, 0.0
+    return pu, rest, jx / jn, jy / jn, jz / jn, _clamp_g(g * min(jn / rest, 1.0))
+
+
 @nb.njit(**ON_ITS_OWN)
 def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffuse, cell_radius):
     """Row m of ``lobes`` (:func:`emission_lobes`)."""
@@ -171,7 +205,14 @@ def cell_lobes(medium, lights, grid, spherical, cells, lobes, m, n_ch, has_diffu
                 phi, phia, pdir = grid_fields(grid, l, c, corners)
             w_dir, g_dir, w_rest, g_rest = walk_lobe_weights(phi, phia, pdir, g)
             pd, jx, jy, jz, g_d = 0.0, 0.0, 0.0, 1.0, 0.0
-            if has_diffuse:
+            region = not point and lights[LOBE_A0][l] > 0.0
+            if region:
+                # an environment region: its unscattered lobe (``direct``, a part of phid) in its
+                # region's pattern, and the rest of its walked light about the rest's own flux
+                w_dir, pd, jx, jy, jz, g_d = region_lobes(grid[DIRECT][l, c], grid[PHID][l, c], grid[FLUX][l, c],
+                                                          corners, g, lights[LOBE_A0][l], axis)
+                g_dir = PATTERN + l
+            elif has_diffuse:
                 pd, jx, jy, jz, g_d = diffuse_lobe_axis(grid[PHID][l, c], grid[FLUX][l, c], corners, g,
                                                         grid[LOBE_CAP][l])
             k = 3 * (l * n_ch + c)
@@ -202,8 +243,11 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
     :func:`mean_inverse_square`, and with g times :func:`mean_radial_cosine`, the spread of the
     directions from the light across it, since the lobe stands for the whole cell) and the
     diffusion stage's light about
-    its flux (diffuse_lobe_axis); a grey field's lobe carries the light's RGB power, channel c's
-    only colour c. Evaluated once per cell, they serve every direction of the gather."""
+    its flux (diffuse_lobe_axis); for an environment region (``lights``' lobe_a0 > 0) its
+    unscattered lobe, marked as pattern l by its g = PATTERN + l (the light gathered_source's
+    ``pattern`` gives it), and the rest about the rest's flux (:func:`region_lobes`); a grey
+    field's lobe carries the light's RGB power, channel c's only colour c. Evaluated once per
+    cell, they serve every direction of the gather."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     n_ch = grid[PHI].shape[1]
     has_diffuse = grid[PHID].shape[0] > 0
@@ -213,7 +257,8 @@ def emission_lobes(medium, lights, grid, spherical, cells, lobes):
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, boundary, sun, out_sun, norm_sun):
+def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, boundary, sun, out_sun, norm_sun,
+                    pattern):
     """Add to ``out`` float32 (lanes, nx, ny, nz, C) the gathered L_s / sigma_s toward the
     camera (module docstring) and to ``norm`` float32 (lanes, nx, ny, nz) the phase
     quadrature's sum, at the voxels where ``needed``; the caller sums the lanes and divides.
@@ -239,7 +284,9 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, bo
     colour has its own sweep (:func:`_sweep_one_colour`): the same arithmetic without the loop
     over channels; so has RGB in a grey medium (:func:`_sweep_grey`).
     dirs float64 (N, 3) unit directions of travel, weights float64 (N,); boundary float64 (N, C),
-    the radiance entering the grid along each direction (module docstring). medium: the render
+    the radiance entering the grid along each direction (module docstring); pattern float64 (N,
+    P): what a unit fluence of pattern lobe j (g = PATTERN + j) scatters toward direction i, per
+    steradian (renderer.pattern_table). medium: the render
     kernel's bundle, on the grid of the lobes (the medium's or a coarser one)."""
     separated, axis, g_sun = sun
     lanes = out.shape[0]
@@ -249,13 +296,13 @@ def gathered_source(medium, lobes, grids, across_z, dirs, weights, out, norm, bo
             f_sun = f_hg(axis[0] * w[0] + axis[1] * w[1] + axis[2] * w[2], g_sun)
             if out.shape[4] == 1:
                 _sweep_one_colour(medium, lobes, grids, across_z, w, weights[i], out[lane], norm[lane],
-                                  boundary[i, 0], separated, f_sun, out_sun[lane], norm_sun[lane])
+                                  boundary[i, 0], separated, f_sun, out_sun[lane], norm_sun[lane], pattern[i])
             elif _grey(medium[1]):
                 _sweep_grey(medium, lobes, grids, across_z, w, weights[i], out[lane], norm[lane], boundary[i],
-                            separated, f_sun, out_sun[lane], norm_sun[lane])
+                            separated, f_sun, out_sun[lane], norm_sun[lane], pattern[i])
             else:
                 _sweep(medium, lobes, grids, across_z, w, weights[i], out[lane], norm[lane], boundary[i],
-                       separated, f_sun, out_sun[lane], norm_sun[lane])
+                       separated, f_sun, out_sun[lane], norm_sun[lane], pattern[i])
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
@@ -342,7 +389,8 @@ def _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz):
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun, norm_sun):
+def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun, norm_sun,
+           pattern):
     """One direction w (float64 (3,), weight ``weight``): transport slice by slice and add
     weight f_hg(w . to the eye; g) times L_in to ``out`` (nx, ny, nz, C) and the weight
     times f_hg to ``norm`` (nx, ny, nz) where ``needed``; the ``separated`` lobes' light,
@@ -372,7 +420,7 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                 alb = 0.0
                 row = slot[rx, ry, rz]
                 if row >= 0:
-                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated)
+                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated, pattern)
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
                 t = a_up = a_v = 0.0
@@ -411,9 +459,10 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
-def _emitted(lobes, row, w0, w1, w2, n_out, separated):
+def _emitted(lobes, row, w0, w1, w2, n_out, separated, pattern):
     """The light of lobe row ``row`` toward (w0, w1, w2), per colour (the last two 0 where
-    n_out = 1): sum over its lobes of weight f_hg(axis . w; g A), empty lobes passed over; then
+    n_out = 1): sum over its lobes of weight f_hg(axis . w; g A), or weight pattern[j] for a
+    pattern lobe (g = PATTERN + j; ``pattern`` the row of w), empty lobes passed over; then
     the ``separated`` lobes' weights alone (:func:`gathered_source`), which that sum leaves out."""
     j0 = j1 = j2 = d0 = d1 = d2 = 0.0
     for k in range(lobes.shape[1]):
@@ -427,7 +476,11 @@ def _emitted(lobes, row, w0, w1, w2, n_out, separated):
             d1 += l1
             d2 += l2
             continue
-        f = f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2, lobes[row, k, 3])
+        gk = lobes[row, k, 3]
+        if gk >= PATTERN:
+            f = pattern[int(gk - PATTERN)]
+        else:
+            f = f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1 + lobes[row, k, 2] * w2, gk)
         j0 += l0 * f
         j1 += l1 * f
         j2 += l2 * f
@@ -450,7 +503,8 @@ def _grey(scale):
 
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
-def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun, norm_sun):
+def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun, norm_sun,
+                pattern):
     """:func:`_sweep` in RGB (out (nx, ny, nz, 3)) where sigma_t is grey (:func:`_grey`): the same
     arithmetic with the three channels written out, one segment's transmittance for all three
     and the upstream point's bilinear weights made once."""
@@ -478,7 +532,7 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                 alb = 0.0
                 row = slot[rx, ry, rz]
                 if row >= 0:
-                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, 3, separated)
+                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, 3, separated, pattern)
                     alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
                 sig = scale_0 * density[rx, ry, rz]
                 e0, e1, e2 = sig * alb * albedo_rgb[0], sig * alb * albedo_rgb[1], sig * alb * albedo_rgb[2]
@@ -537,7 +591,7 @@ def _lerp2(buf, k, i0, i1, j0, j1, fu, fv):
 
 @nb.njit(fastmath=True, cache=True, nogil=True)
 def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separated, f_sun, out_sun,
-                      norm_sun):
+                      norm_sun, pattern):
     """:func:`_sweep` where every lobe has one colour (out (nx, ny, nz, 1)): the lobes' first
     weight transported with sigma_t's first channel, the same arithmetic in the same order
     without the loop over channels (so the same bits), the upstream point's five bilinear
@@ -568,6 +622,8 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
                         if lk != 0.0:
                             if separated[k]:
                                 d += lk
+                            elif lobes[row, k, 3] >= PATTERN:
+                                j += lk * pattern[int(lobes[row, k, 3] - PATTERN)]
                             else:
                                 j += lk * f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1
                                                + lobes[row, k, 2] * w2, lobes[row, k, 3])

@@ -51,7 +51,7 @@ the face, averaged over its segment in closed form (:func:`edge_single_scatterin
 
 The kernel takes its inputs packed in tuples (the renderer's ``render_inputs`` builds them):
   medium     (density, scale, albedo, albedo_rgb, g, origin, voxel, lo, hi, blocks, block_bits, occupied)
-  lights     (is_point, direction, power, position, unscattered)
+  lights     (is_point, direction, power, position, unscattered, lobe_a0)
   grid       (phi, phia, direct, phid, flux, lobe_cap)      the fields on the medium's grid
   spherical  (fields, offset, shape, params, frame, full)   the point lights' own fields
   view       (source, near, points)                         the combined source, if any
@@ -90,7 +90,7 @@ TINY = 1e-30    # a floor for divisors that may be 0 (where the lobe's weight is
 # Positions in the bundles, for the helpers of the innermost loops (per sample, light and
 # channel), which read single arrays of a bundle where they use them: unpacking a bundle into
 # names there, Numba took and dropped a reference to its arrays (atomic counts) at every sample.
-IS_POINT, DIRECTION, POWER, POSITION, UNSCATTERED = 0, 1, 2, 3, 4  # lights
+IS_POINT, DIRECTION, POWER, POSITION, UNSCATTERED, LOBE_A0 = 0, 1, 2, 3, 4, 5  # lights
 PHI, PHIA, DIRECT, PHID, FLUX, LOBE_CAP = 0, 1, 2, 3, 4, 5      # grid
 FIELDS, OFFSET, SHAPE, PARAMS, FRAME, FULL = 0, 1, 2, 3, 4, 5   # spherical
 
@@ -788,9 +788,13 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
     lights: is_point bool (n_lights,); direction float64 (n_lights, 3), the direction a sun's
         light travels; power float64 (n_lights, 3), RGB irradiance or intensity; position
         float64 (n_lights, 3), a point light's; unscattered bool (n_lights,), whether the
-        light's unscattered part is in ``direct`` (environment lights have none).
+        light's unscattered part is in ``direct`` as a delta lobe (an environment's lights' is
+        not); lobe_a0 float64 (n_lights,), read by the gathered last bounce alone
+        (kernels/gather.py): an environment region's a0 where its unscattered lobe is in
+        ``direct`` and gathered with its region's pattern, else 0.
     grid: phi, phia, direct float32 (n_lights, n_channels (1 or 3), nx, ny, nz) per unit power
-        (direct: the unscattered part of phi; all 0 for point lights); phid, flux: the diffuse
+        (direct: the unscattered part of phi; all 0 for point lights; an environment region's
+        unscattered lobe, a part of phid, with phi and phia 0); phid, flux: the diffuse
         lobe's fluence (n_lights, n_channels, ...) and world flux vector (n_lights, n_channels,
         3, ...), or arrays with n_lights = 0 when there is no diffusion stage; lobe_cap float64
         (n_lights,), the largest anisotropy of each light's diffuse lobe (diffuse_lobe).
@@ -819,7 +823,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         background_radiance).
     """
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
-    is_point, direction, power, position, unscattered = lights
+    is_point, direction, power, position, unscattered, lobe_a0 = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
     fields, offset, shape, params, frame, full = spherical
     source, near, points = view
@@ -831,7 +835,7 @@ def render_kernel(medium, lights, grid, spherical, view, camera, march, backgrou
         # their arrays (atomic counts) at every sample, about 1.2x slower.
         medium_ = (density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits,
                    occupied)
-        lights_ = (is_point, direction, power, position, unscattered)
+        lights_ = (is_point, direction, power, position, unscattered, lobe_a0)
         grid_ = (phi, phia, direct, phid, flux, lobe_cap)
         spherical_ = (fields, offset, shape, params, frame, full)
         view_ = (source, near, points)

@@ -37,7 +37,7 @@ def in_scattering_source(medium, lights, grid, spherical, eye, needed, out, lane
     thread: 13 ms against 18 ms with one loop holding both lobes and the branches between
     them), and only the needed voxels are added to ``out``."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
-    is_point, direction, power, position, unscattered = lights
+    is_point, direction, power, position, unscattered, lobe_a0 = lights
     phi, phia, direct, phid, flux, lobe_cap = grid
     nx, ny, nz = needed.shape
     n_ch = phi.shape[1]

@@ -139,14 +139,17 @@ class SunDomain(DirectionalDomain):
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
                           method.tolerance, method.max_iterations, progress=progress, handover=handover,
                           scatter=scatter, read=read, ordinates=method.ordinates)
-        result.direct = self.direct_fluence(sigma_t)
+        if self.unscattered or method.solver == "ordinates":
+            # a broad lobe's unscattered part, kept apart from the ordinates' walked light for the
+            # gathered last bounce (docs/METHOD.md Eq. 26a)
+            result.direct, result.direct_a0 = self.direct_fluence(sigma_t), self.a0
         return result
 
     def direct_fluence(self, sigma_t):
-        """A collimated sun's unscattered fluence at the cell centres per unit irradiance
-        (float32, the domain's shape; Eq. 22), lit with its own lobe by the renderer; None for
-        an environment's light (a0 < 1)."""
-        return direct_fluence(sigma_t, self.h) if self.unscattered else None
+        """The unscattered fluence of the injected light at the cell centres per unit irradiance
+        (float32, the domain's shape; Eq. 22): a collimated sun's, lit with its own lobe by the
+        renderer, or a broad lobe's (a0 < 1, an environment's light), Beer-Lambert along d."""
+        return direct_fluence(sigma_t, self.h)
 
     def hand_over(self, walk, optics, medium, method, channel: int = 0) -> HandOver:
         """The diffusion grid is the domain itself, in blocks of diffusion_factor^3 cells."""
