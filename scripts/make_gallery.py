@@ -3,6 +3,8 @@ the checkout):
 
     python scripts/make_gallery.py                      # popvol only
     python scripts/make_gallery.py --references         # and Mitsuba 3 beside it, where made
+    python scripts/make_gallery.py --references --only wdas_side dragon_sky   # these entries;
+                                                        # the others' sections kept as they are
 
 Each entry is an example scene rendered by the command the gallery prints, at the size given
 below, after one warm-up render (so the time excludes the Numba compile). With
@@ -68,11 +70,20 @@ def render(name: str, size: tuple[int, int], tmp: Path) -> tuple[np.ndarray, dic
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--references", action="store_true", help="add the Mitsuba references of build/gallery")
+    ap.add_argument("--only", nargs="+", metavar="NAME", choices=[e[0] for e in ENTRIES],
+                    help="render only these entries and keep the others' sections (and figures) from the "
+                         "current docs/GALLERY.md")
     args = ap.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
+    kept = kept_sections(ROOT / "docs" / "GALLERY.md") if args.only else {}
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, caption, size in ENTRIES:
+            if args.only and name not in args.only:
+                if caption not in kept:
+                    ap.error(f"--only: docs/GALLERY.md has no section '{caption}' to keep; run without --only")
+                rows.append({"name": name, "kept": kept[caption]})
+                continue
             try:
                 popvol.load_scene(ROOT / "examples" / f"{name}.toml")
             except popvol.PopvolError as e:
@@ -99,6 +110,22 @@ def main():
     write_markdown(rows)
 
 
+def kept_sections(path: Path) -> dict:
+    """The sections of a gallery page by caption: {caption: its lines, from its "## " heading
+    to the next one}."""
+    out, caption = {}, None
+    for line in path.read_text().splitlines():
+        if line.startswith("## "):
+            caption = line[3:]
+            out[caption] = []
+        if caption is not None:
+            out[caption].append(line)
+    for lines in out.values():            # each ends with its blank line, the last one too
+        if lines[-1]:
+            lines.append("")
+    return out
+
+
 def write_markdown(rows):
     cpu = next((l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text().splitlines()
                 if l.startswith("model name")), platform.processor()) if Path("/proc/cpuinfo").exists() else ""
@@ -115,6 +142,9 @@ def write_markdown(rows):
              "(`popvol compare`). Times are popvol's whole render (load, solve, render, write) after a warm-up",
              "run that compiled the kernels; the WDAS scenes need `../shared/data/volumes`.", ""]
     for r in rows:
+        if "kept" in r:
+            lines += r["kept"]
+            continue
         lines += [f"## {r['caption']}", "", f"![{r['name']}](figures/gallery/{r['name']}.png)", "",
                   f"`{r['cmd']}`: {r['size'][0]}x{r['size'][1]}, {r['lights']} light domain(s), "
                   f"{r['seconds']:.1f} s.", ""]
