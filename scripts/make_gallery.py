@@ -140,7 +140,12 @@ def write_markdown(rows):
              "measured against the other), with the reference's own noise in the same relMSE and popvol's",
              "relMSE against a noiseless reference, extrapolated from the reference's two halves",
              "(`popvol compare`). Times are popvol's whole render (load, solve, render, write) after a warm-up",
-             "run that compiled the kernels; the WDAS scenes need `../shared/data/volumes`.", ""]
+             "run that compiled the kernels; the WDAS scenes need `../shared/data/volumes`."]
+    kept = [r["name"] for r in rows if "kept" in r]
+    if kept:
+        lines += [f"The entries {', '.join(f'`{k}`' for k in kept)} keep their figures and times from an earlier",
+                  "run (`--only`), on a day the same machine may have run at another speed."]
+    lines += [""]
     for r in rows:
         if "kept" in r:
             lines += r["kept"]
