@@ -8,8 +8,8 @@ import numpy as np
 
 from . import hg
 from .envmap import texel_geometry
-from .io.images import luminance
 from .errors import PopvolError
+from .io.images import luminance
 from .kernels.gather import emission_lobes, eye_directions, gathered_source
 from .kernels.render import EDGE_DEPTH, background_radiance, render_kernel, substeps
 from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
@@ -359,6 +359,7 @@ def region_pattern(env: np.ndarray, texels: np.ndarray) -> tuple[np.ndarray, np.
     keep = lum > 0
     dirs = m[keep] / np.linalg.norm(m[keep], axis=1)[:, None]
     p = lum[keep]
+    # a region holds some light (envmap.decompose makes none of dark texels)
     return -dirs, p / p.sum()
 
 
