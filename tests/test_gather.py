@@ -266,10 +266,11 @@ def test_region_pattern_of_the_whole_sky_is_isotropic(H, g):
 
 
 def test_region_pattern_of_a_cap_is_its_phase_integral():
-    """A region that is a cap of the sky 30 degrees across its axis a, of one radiance, lit
-    from by its texels, against the phase function integrated over the cap by quadrature in
-    polar angle and azimuth about a (independent of the map's texels): what it scatters toward
-    w is int_cap f_hg(-s . w; g) ds / Omega_cap, within 2 % at w along, across and against a."""
+    """A region that is a cap of the sky of half-angle 30 degrees about its axis a, of one
+    radiance, taken from its texels, against the phase function integrated over the cap by
+    quadrature in polar angle and azimuth about a (independent of the map's texels): what it
+    scatters toward w is int_cap f_hg(-s . w; g) ds / Omega_cap, within 2 % at w along, across
+    and against a, and half-way between against and across."""
     H, g = 64, 0.6
     from popvol.envmap import texel_geometry
     toward, _ = texel_geometry(H, 2 * H)
