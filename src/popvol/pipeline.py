@@ -100,7 +100,7 @@ def solve_light(medium, light, method, progress=None, channel: int = 0, warm: Do
     return ds
 
 
-def region_lobes(sols: list, n_lights: int) -> np.ndarray:
+def broad_lobe_a0(sols: list, n_lights: int) -> np.ndarray:
     """float64 (n_lights,): each light's a0 where its domains kept a broad lobe's unscattered
     part in ``direct`` (an environment region walked by the ordinates: WalkResult.direct_a0 <
     1; Solution.lobe_a0), else 0."""
@@ -427,7 +427,7 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
                     positions=np.array([l.render_position for l in lights], np.float64).reshape(-1, 3),
                     is_point=np.array([l.fields_in_domain for l in lights], np.bool_),
                     unscattered=np.array([l.unscattered for l in lights], np.bool_),
-                    lobe_a0=region_lobes(sols, n),
+                    lobe_a0=broad_lobe_a0(sols, n),
                     irradiance=np.array([l.power for l in lights], np.float64).reshape(-1, 3),
                     points=point_fields(sols, n, n_ch), phid=phid, flux=flux, seconds=seconds, key=key,
                     lobe_cap=lobe_cap)

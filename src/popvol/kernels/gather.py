@@ -59,7 +59,7 @@ import numpy as np
 
 from . import ON_ITS_OWN
 from .render import (DIRECT, DIRECTION, FIELDS, FLUX, FULL, LOBE_A0, LOBE_CAP, OFFSET, PHI, PHID, POSITION, POWER,
-                     SHAPE, _clamp_g, diffuse_lobe_axis, f_hg, grid_fields, light_geometry, point_lookup,
+                     SHAPE, diffuse_lobe_axis, f_hg, flux_lobe_axis, grid_fields, light_geometry, point_lookup,
                      walk_lobe_weights)
 from .sampling import interpolate
 
@@ -162,14 +162,13 @@ def region_lobes(direct, phid, flux, corners, g, a0, axis):
     if pd <= 0.0:
         return 0.0, 0.0, 0.0, 0.0, 1.0, 0.0
     pu = min(max(interpolate(direct, corners), 0.0), pd)
-    jx = interpolate(flux[0], corners) - a0 * pu * axis[0]
-    jy = interpolate(flux[1], corners) - a0 * pu * axis[1]
-    jz = interpolate(flux[2], corners) - a0 * pu * axis[2]
     rest = pd - pu
-    jn = math.sqrt(jx * jx + jy * jy + jz * jz)
-    if rest <= 0.0 or jn <= 0.0:
-        return pu, rest, 0.0, 0.0, 1.0, 0.0
-    return pu, rest, jx / jn, jy / jn, jz / jn, _clamp_g(g * min(jn / rest, 1.0))
+    if rest <= 0.0:
+        return pu, 0.0, 0.0, 0.0, 1.0, 0.0
+    rest, jx, jy, jz, g_rest = flux_lobe_axis(rest, interpolate(flux[0], corners) - a0 * pu * axis[0],
+                                              interpolate(flux[1], corners) - a0 * pu * axis[1],
+                                              interpolate(flux[2], corners) - a0 * pu * axis[2], g, 1.0)
+    return pu, rest, jx, jy, jz, g_rest
 
 
 @nb.njit(**ON_ITS_OWN)

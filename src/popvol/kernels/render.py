@@ -311,9 +311,15 @@ def diffuse_lobe_axis(phid, flux, corners, g, cap):
     pd = interpolate(phid, corners)
     if pd <= 0.0:
         return 0.0, 0.0, 0.0, 1.0, 0.0
-    jx = interpolate(flux[0], corners)
-    jy = interpolate(flux[1], corners)
-    jz = interpolate(flux[2], corners)
+    return flux_lobe_axis(pd, interpolate(flux[0], corners), interpolate(flux[1], corners),
+                          interpolate(flux[2], corners), g, cap)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def flux_lobe_axis(pd, jx, jy, jz, g, cap):
+    """Light of fluence pd > 0 and flux J = (jx, jy, jz) as one lobe about J, seen through the
+    phase: (pd, J/|J| (3 numbers), g min(|J| / pd, cap)); isotropic where J = 0
+    (:func:`diffuse_lobe_axis` at a point)."""
     jn = math.sqrt(jx * jx + jy * jy + jz * jz)
     if jn <= 0.0:
         return pd, 0.0, 0.0, 1.0, 0.0
