@@ -132,6 +132,51 @@ def slab_fluence_mc(mu0, albedo, g, depth, n_bins, n_photons=200_000, seed=0):
 
 
 @nb.njit(cache=True)
+def _slab_legendre(albedo, g, depth, nbins, lmax, n, seed):
+    np.random.seed(seed)
+    acc = np.zeros((nbins, lmax + 1))
+    P = np.zeros(lmax + 1)
+    dz = depth / nbins
+    for _ in range(n):
+        z, mu, w = 0.0, 1.0, 1.0
+        scattered = False
+        while w > 0.0:
+            z1 = z + mu * (-math.log(1.0 - np.random.random()))
+            lo, hi = (z, min(z1, depth)) if mu > 0.0 else (max(z1, 0.0), z)
+            if scattered and mu != 0.0 and hi > lo:
+                P[0] = 1.0
+                P[1] = mu
+                for l in range(2, lmax + 1):          # Bonnet's recursion
+                    P[l] = ((2 * l - 1) * mu * P[l - 1] - (l - 1) * P[l - 2]) / l
+                for b in range(int(lo / dz), min(int(hi / dz), nbins - 1) + 1):
+                    part = min(hi, (b + 1) * dz) - max(lo, b * dz)
+                    if part > 0.0:
+                        track = w * part / abs(mu)
+                        for l in range(lmax + 1):
+                            acc[b, l] += track * P[l]
+            if z1 <= 0.0 or z1 >= depth:
+                break
+            z = z1
+            w = _roulette(w * albedo)
+            if w == 0.0:
+                break
+            mu = _scatter_mu(mu, g)
+            scattered = True
+    return acc
+
+
+def slab_legendre_mc(albedo, g, depth, n_bins, lmax=48, n_photons=200_000, seed=0):
+    """The scattered light's angular shape inside a plane-parallel slab of optical thickness
+    ``depth`` lit at its top by a collimated beam of unit irradiance along its normal: float64
+    (n_bins, lmax + 1), per layer (n_bins equal layers from the top), the scattered fluence
+    (column 0, in units of the irradiance) times the Legendre moments <P_l(mu)> of its radiance
+    about the beam (column l; mu the cosine to the beam). Track-length estimates of the light
+    that scattered at least once, so column 0 is slab_fluence_mc's fluence less exp(-z)."""
+    acc = _slab_legendre(float(albedo), float(g), float(depth), int(n_bins), int(lmax), int(n_photons), int(seed))
+    return acc / (n_photons * (depth / n_bins))
+
+
+@nb.njit(cache=True)
 def _r2_integral(a, b, c, d, L):
     """int_0^L (a + b t)^2 + (c + d t)^2 dt."""
     return (a * a + c * c) * L + (a * b + c * d) * L * L + (b * b + d * d) * L * L * L / 3.0

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from montecarlo import chandrasekhar_h, cube_beam_mc, half_space_mc, slab_fluence_mc, slab_mc
+from montecarlo import chandrasekhar_h, cube_beam_mc, half_space_mc, slab_fluence_mc, slab_legendre_mc, slab_mc
 
 
 def test_slab_pure_absorber_is_beer_lambert():
@@ -71,3 +71,40 @@ def test_slab_fluence_absorbs_what_the_slab_oracle_absorbs():
     phi = slab_fluence_mc(1.0, albedo, g, depth, n, n_photons=200_000, seed=6)
     absorbed = (1.0 - albedo) * phi.sum() * depth / n
     assert absorbed == pytest.approx(slab_mc(depth, albedo, g, n_photons=200_000, seed=7)["A"], rel=0.01)
+
+
+def _layer_mean_exp(depth, n):
+    z = np.linspace(0.0, depth, n + 1)
+    return (np.exp(-z[:-1]) - np.exp(-z[1:])) / (depth / n)
+
+
+def test_slab_legendre_fluence_is_the_fluence_less_the_unscattered_light():
+    """Column 0 of slab_legendre_mc (the light that scattered) plus Beer-Lambert's unscattered
+    light is slab_fluence_mc's fluence (another run of another tally)."""
+    depth, n = 3.0, 6
+    scattered = slab_legendre_mc(0.95, 0.8, depth, n, lmax=4, n_photons=200_000, seed=11)[:, 0]
+    total = slab_fluence_mc(1.0, 0.95, 0.8, depth, n, n_photons=200_000, seed=12)
+    np.testing.assert_allclose(scattered + _layer_mean_exp(depth, n), total, rtol=0.02)
+
+
+def test_slab_legendre_flux_carries_what_is_transmitted():
+    """In a slab that absorbs nothing the net flux is the same at every depth: the scattered
+    light's flux (column 1, fluence times <mu>) plus the beam's exp(-z) is the transmittance T,
+    which slab_mc counts at the far face (energy conservation; two estimators)."""
+    depth, n = 4.0, 8
+    flux = slab_legendre_mc(1.0, 0.7, depth, n, lmax=4, n_photons=200_000, seed=13)[:, 1]
+    T = slab_mc(depth, 1.0, 0.7, n_photons=200_000, seed=14)["T"]
+    np.testing.assert_allclose(flux + _layer_mean_exp(depth, n), T, atol=0.01)
+
+
+def test_slab_legendre_deep_light_is_diffusion():
+    """Deep in a thick slab that scatters isotropically and absorbs nothing, the radiance is
+    diffusion's 1 + 3 <mu> mu (its second moment <P_2> vanishes, up to O(1 / tau^2)) and its
+    flux is Fick's law: <mu> phi = -(1/3) d phi / dz (the P1 approximation's exact limit)."""
+    depth, n = 20.0, 10
+    acc = slab_legendre_mc(1.0, 0.0, depth, n, lmax=2, n_photons=40_000, seed=15)
+    mid = slice(3, 7)
+    assert np.all(np.abs(acc[mid, 2] / acc[mid, 0]) < 0.02)
+    dz = depth / n
+    fick = -(acc[4:8, 0] - acc[2:6, 0]) / (2 * dz) / 3.0
+    np.testing.assert_allclose(acc[3:7, 1], fick, rtol=0.1)
