@@ -111,14 +111,15 @@ def _landing(cell, offs, landing, c, n, k, i, j):
 
 @nb.njit(fastmath=True, error_model="numpy", forceinline=True, _nrt=False, cache=True)
 def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell, landing, pending, k, i, j,
-          scratch, g, held_at, held, tallies, ahead):
+          scratch, g, held_n, held_at, held, tallies, ahead):
     """Cell (k, i, j) sends its packets above ``w_min`` (module docstring). Row g of
-    ``scratch`` (float64 (groups, 128)) is the caller's: what leaves for each neighbour (power,
+    ``scratch`` (float32 (groups, 128)) is the caller's: what leaves for each neighbour (power,
     then power times anisotropy) in columns 0-35 (indexed, not sliced: a view made per cell
-    costs every thread an atomic update of the array's reference count), and in column 100 the
-    number of parts it holds (module docstring) in ``held_at`` (int64 (groups, capacity, 3): the
-    landing cell's row of W, the ordinate, the landing row k n_u + i) and ``held`` (float64
-    (groups, capacity, 2): power and power times anisotropy, after the landing cell's half step).
+    costs every thread an atomic update of the array's reference count); held_n[g, 0] (int64
+    (groups, 16)) counts the parts its group holds (module docstring) in ``held_at`` (int64
+    (groups, capacity, 3): the landing cell's row of W, the ordinate, the landing row k n_u + i)
+    and ``held`` (float64 (groups, capacity, 2): power and power times anisotropy, after the
+    landing cell's half step). A packet's split is computed in float32, as its power is stored.
     Only the ordinates marked ``ahead`` (bool (18,)) are sent. ``tallies`` = (reflected,
     transmitted, side escaped, absorbed, packets sent) so far; returns them updated. A skipped
     cell (``cell`` < 0) holds none."""
@@ -129,6 +130,7 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
     n0, n1, n2 = Th.shape
     na = table.shape[1]
     sq2 = math.sqrt(2.0)
+    one = np.float32(1.0)
     sending = False
     for o in range(M18):
         w = W[c, o]
@@ -138,7 +140,7 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
             continue
         if not sending:
             for n in range(2 * M18):
-                scratch[g, n] = 0.0
+                scratch[g, n] = np.float32(0.0)
             sending = True
         wa = Wa[c, o]
         W[c, o] = 0.0
@@ -160,7 +162,7 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
         absorbed += w - sent
         k2, i2, j2 = k + offs[o, 0], i + offs[o, 1], j + offs[o, 2]
         inside = 0 <= k2 < n0 and 0 <= i2 < n1 and 0 <= j2 < n2
-        shc = 1.0
+        shc = one
         D = dh
         if inside:
             shc = Sh2[k2, i2, j2] if edge else Sh[k2, i2, j2]
@@ -171,21 +173,21 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
         scratch[g, M18 + o] += sent * S * a
         if S >= 1.0:
             continue
-        a_s = a * (D - S) / (1.0 - S)
-        x = min(max((a_s + 1.0) * 0.5 * (na - 1), 0.0), na - 1.0)
+        a_s = a * (D - S) / (one - S)
+        x = min(max((a_s + one) * np.float32(0.5 * (na - 1)), np.float32(0.0)), np.float32(na - 1))
         t = min(int(x), na - 2)
-        lam = x - t
+        lam = x - np.float32(t)
         # what scatters in the sender's half is split here, to the sender's neighbours; what
         # scatters in the receiver's half crosses into the receiver (its half step) and is split
         # there, into the receiver's own ordinates
-        es = sent * (1.0 - sh)
-        er = 0.0
+        es = sent * (one - sh)
+        er = np.float32(0.0)
         c2 = -1
         if inside and shc < 1.0:         # the receiver holds medium, so it is not skipped
             c2 = cell[k2, i2, j2]
             thc = Th2[k2, i2, j2] if edge else Th[k2, i2, j2]
-            er = sent * sh * (1.0 - shc)
-            absorbed += er * (1.0 - thc)
+            er = sent * sh * (one - shc)
+            absorbed += er * (one - thc)
             er *= thc
             if pending[k2, i2] == 0:     # written once a sweep: the other group reads this line
                 pending[k2, i2] = 1
@@ -224,13 +226,13 @@ def _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min
                 c3 = cell[k3, i3, j3]
                 if offs[n, 0] != 0 and offs[n, 1] != 0 and k3 != k + offs[n, 0]:
                     # across skipped cells along a (d, u) edge: held until the sweep's end
-                    q = np.int64(scratch[g, 100])
+                    q = held_n[g, 0]
                     held_at[g, q, 0] = c3
                     held_at[g, q, 1] = n
                     held_at[g, q, 2] = k3 * n1 + i3
                     held[g, q, 0] = e * th3
                     held[g, q, 1] = scratch[g, M18 + n] * th3
-                    scratch[g, 100] += 1.0
+                    held_n[g, 0] += 1
                 else:
                     W[c3, n] += e * th3
                     Wa[c3, n] += scratch[g, M18 + n] * th3
@@ -264,9 +266,10 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
     held)."""
     n0, n1, n2 = Th.shape
     groups = edges.shape[0] - 1
-    # each group's scratch (_send's) in a row of its own, 1 kB apart: no two groups share a cache
-    # line
-    scratch = np.zeros((groups, 128))
+    # each group's scratch (_send's) and count of parts held in rows of their own, 512 and 128
+    # bytes apart: no two groups share a cache line
+    scratch = np.zeros((groups, 128), np.float32)
+    held_n = np.zeros((groups, 16), np.int64)
     part = np.zeros((5, n0 * n1))
     for step in range(n0 + LAG * (groups - 1)):
         for g in nb.prange(groups):
@@ -282,17 +285,17 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
                     for jj in range(n2):
                         j = jj if forward_v else n2 - 1 - jj
                         t = _send(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, phi, F, w_min, cell,
-                                  landing, pending, k, i, j, scratch, g, held_at, held, t, ahead)
+                                  landing, pending, k, i, j, scratch, g, held_n, held_at, held, t, ahead)
                     row = k * n1 + i
                     part[0, row], part[1, row], part[2, row], part[3, row] = t[0], t[1], t[2], t[3]
                     part[4, row] = t[4]
     for g in range(groups):             # the held parts, group by group, in the order held
-        for q in range(np.int64(scratch[g, 100])):
+        for q in range(held_n[g, 0]):
             c3, n, row = held_at[g, q, 0], held_at[g, q, 1], held_at[g, q, 2]
             W[c3, n] += held[g, q, 0]
             Wa[c3, n] += held[g, q, 1]
             pending[row // n1, row % n1] = 1
     held_parts = 0
     for g in range(groups):
-        held_parts += np.int64(scratch[g, 100])
+        held_parts += held_n[g, 0]
     return add_row_parts(part, tally, row_work), held_parts
