@@ -97,59 +97,27 @@ def slab_mc(tau, albedo, g, n_photons=200_000, seed=0):
 
 
 @nb.njit(cache=True)
-def _slab_fluence(mu0, albedo, g, depth, nbins, n, seed):
-    np.random.seed(seed)
-    acc = np.zeros(nbins)
-    dz = depth / nbins
-    for _ in range(n):
-        z, mu, w = 0.0, mu0, 1.0
-        while w > 0.0:
-            z1 = z + mu * (-math.log(1.0 - np.random.random()))
-            lo, hi = (z, min(z1, depth)) if mu > 0.0 else (max(z1, 0.0), z)
-            if mu != 0.0 and hi > lo:       # the flight's length in each depth bin
-                for b in range(int(lo / dz), min(int(hi / dz), nbins - 1) + 1):
-                    part = min(hi, (b + 1) * dz) - max(lo, b * dz)
-                    if part > 0.0:
-                        acc[b] += w * part / abs(mu)
-            if z1 <= 0.0 or z1 >= depth:
-                break
-            z = z1
-            w = _roulette(w * albedo)
-            if w == 0.0:
-                break
-            mu = _scatter_mu(mu, g)
-    return acc
-
-
-def slab_fluence_mc(mu0, albedo, g, depth, n_bins, n_photons=200_000, seed=0):
-    """Fluence inside a plane-parallel slab of optical thickness ``depth`` lit at its top by a
-    collimated beam of unit irradiance (normal to the beam) at cos ``mu0`` to the normal:
-    float64 (n_bins,), the mean fluence over each of n_bins equal layers from the top, in units
-    of the irradiance (the track length in each layer: the unscattered light alone gives
-    exp(-z / mu0) averaged over the layer)."""
-    acc = _slab_fluence(float(mu0), float(albedo), float(g), float(depth), int(n_bins), int(n_photons), int(seed))
-    return mu0 * acc / (n_photons * (depth / n_bins))
-
-
-@nb.njit(cache=True)
-def _slab_legendre(albedo, g, depth, nbins, lmax, n, seed):
+def _slab_tally(mu0, albedo, g, depth, nbins, lmax, scattered_only, n, seed):
+    """Per depth bin, each flight's track length times P_l(mu), l = 0..lmax (the light that has
+    scattered only, or all of it)."""
     np.random.seed(seed)
     acc = np.zeros((nbins, lmax + 1))
     P = np.zeros(lmax + 1)
     dz = depth / nbins
     for _ in range(n):
-        z, mu, w = 0.0, 1.0, 1.0
+        z, mu, w = 0.0, mu0, 1.0
         scattered = False
         while w > 0.0:
             z1 = z + mu * (-math.log(1.0 - np.random.random()))
             lo, hi = (z, min(z1, depth)) if mu > 0.0 else (max(z1, 0.0), z)
-            if scattered and mu != 0.0 and hi > lo:
+            if (scattered or not scattered_only) and mu != 0.0 and hi > lo:
                 P[0] = 1.0
-                P[1] = mu
+                if lmax > 0:
+                    P[1] = mu
                 for l in range(2, lmax + 1):          # Bonnet's recursion
                     P[l] = ((2 * l - 1) * mu * P[l - 1] - (l - 1) * P[l - 2]) / l
-                for b in range(int(lo / dz), min(int(hi / dz), nbins - 1) + 1):
-                    part = min(hi, (b + 1) * dz) - max(lo, b * dz)
+                for b in range(int(lo / dz), min(int(hi / dz), nbins - 1) + 1):   # the flight's
+                    part = min(hi, (b + 1) * dz) - max(lo, b * dz)                 # length in each bin
                     if part > 0.0:
                         track = w * part / abs(mu)
                         for l in range(lmax + 1):
@@ -165,6 +133,17 @@ def _slab_legendre(albedo, g, depth, nbins, lmax, n, seed):
     return acc
 
 
+def slab_fluence_mc(mu0, albedo, g, depth, n_bins, n_photons=200_000, seed=0):
+    """Fluence inside a plane-parallel slab of optical thickness ``depth`` lit at its top by a
+    collimated beam of unit irradiance (normal to the beam) at cos ``mu0`` to the normal:
+    float64 (n_bins,), the mean fluence over each of n_bins equal layers from the top, in units
+    of the irradiance (the track length in each layer: the unscattered light alone gives
+    exp(-z / mu0) averaged over the layer)."""
+    acc = _slab_tally(float(mu0), float(albedo), float(g), float(depth), int(n_bins), 0, False, int(n_photons),
+                      int(seed))[:, 0]
+    return mu0 * acc / (n_photons * (depth / n_bins))
+
+
 def slab_legendre_mc(albedo, g, depth, n_bins, lmax=48, n_photons=200_000, seed=0):
     """The scattered light's angular shape inside a plane-parallel slab of optical thickness
     ``depth`` lit at its top by a collimated beam of unit irradiance along its normal: float64
@@ -172,7 +151,8 @@ def slab_legendre_mc(albedo, g, depth, n_bins, lmax=48, n_photons=200_000, seed=
     (column 0, in units of the irradiance) times the Legendre moments <P_l(mu)> of its radiance
     about the beam (column l; mu the cosine to the beam). Track-length estimates of the light
     that scattered at least once, so column 0 is slab_fluence_mc's fluence less exp(-z)."""
-    acc = _slab_legendre(float(albedo), float(g), float(depth), int(n_bins), int(lmax), int(n_photons), int(seed))
+    acc = _slab_tally(1.0, float(albedo), float(g), float(depth), int(n_bins), int(lmax), True, int(n_photons),
+                      int(seed))
     return acc / (n_photons * (depth / n_bins))
 
 
