@@ -54,13 +54,17 @@ def test_half_space_matches_chandrasekhar_isotropic():
     assert r["total"] == pytest.approx(first * H0 * H1, rel=4 * r["stderr_total"] / r["total"] + 2e-3)
 
 
+def _layer_mean_exp(depth, n, mu0=1.0):
+    """Each of n equal layers' mean of exp(-z / mu0) over a depth ``depth``, in closed form."""
+    z = np.linspace(0.0, depth, n + 1)
+    return mu0 * (np.exp(-z[:-1] / mu0) - np.exp(-z[1:] / mu0)) / (depth / n)
+
+
 def test_slab_fluence_of_a_pure_absorber_is_beer_lambert():
     """Each layer's mean of exp(-z / mu0), in closed form."""
     mu0, depth, n = 0.8, 3.0, 6
     got = slab_fluence_mc(mu0, 0.0, 0.5, depth, n, n_photons=400_000, seed=4)
-    z = np.linspace(0.0, depth, n + 1)
-    exact = mu0 * (np.exp(-z[:-1] / mu0) - np.exp(-z[1:] / mu0)) / (depth / n)
-    np.testing.assert_allclose(got, exact, rtol=0.02)
+    np.testing.assert_allclose(got, _layer_mean_exp(depth, n, mu0), rtol=0.02)
 
 
 def test_slab_fluence_absorbs_what_the_slab_oracle_absorbs():
@@ -71,11 +75,6 @@ def test_slab_fluence_absorbs_what_the_slab_oracle_absorbs():
     phi = slab_fluence_mc(1.0, albedo, g, depth, n, n_photons=200_000, seed=6)
     absorbed = (1.0 - albedo) * phi.sum() * depth / n
     assert absorbed == pytest.approx(slab_mc(depth, albedo, g, n_photons=200_000, seed=7)["A"], rel=0.01)
-
-
-def _layer_mean_exp(depth, n):
-    z = np.linspace(0.0, depth, n + 1)
-    return (np.exp(-z[:-1]) - np.exp(-z[1:])) / (depth / n)
 
 
 def test_slab_legendre_fluence_is_the_fluence_less_the_unscattered_light():
