@@ -1210,6 +1210,17 @@ def coarsen(x: np.ndarray, factor: int, how: str = "sum") -> np.ndarray:
     return b if how == "sum" else b / factor ** 3
 
 
+def pending_blocks(W, Wa, cell, factor: int):
+    """Twin of kernels.ordinates18.pending_blocks: (P, M) float64 (b_d, b_u, b_v, n), the rows
+    of W, Wa (m, n) placed at their cells (``cell``, -1 where none) and summed over blocks of
+    factor^3 cells by :func:`coarsen`, one ordinate at a time."""
+    full = [np.zeros(cell.shape + (W.shape[1],)) for _ in range(2)]
+    kept = cell >= 0
+    for x, out in zip((W, Wa), full):
+        out[kept] = x[cell[kept]]
+    return tuple(np.stack([coarsen(out[..., o], factor) for o in range(W.shape[1])], axis=-1) for out in full)
+
+
 def upsample(coarse: np.ndarray, factor: int, shape: tuple) -> np.ndarray:
     """Twin of kernels.sampling.upsample_blocks: (nx, ny, nz, C) from the blocks' values
     ``coarse`` at their centres, trilinear at every voxel centre, clamped to the edge

@@ -73,6 +73,14 @@ def coarsen(x, factor: int, how: str = "sum") -> np.ndarray:
     return b if how == "sum" else b / factor ** 3
 
 
+def coarse_optics(sigma_t, sigma_s, g, factor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """sigma_t, sigma_s and g of blocks of factor^3 cells, float64: sigma_t and sigma_s averaged,
+    g averaged weighted by sigma_s (0 where a block does not scatter)."""
+    ss = coarsen(sigma_s, factor, "mean")
+    g = np.divide(coarsen(sigma_s * g, factor, "mean"), ss, out=np.zeros_like(ss), where=ss > 0)
+    return coarsen(sigma_t, factor, "mean"), ss, g
+
+
 def coefficients(sigma_t, sigma_s, g, h):
     """D [world units], sigma_a h^3, and the region mask, from the domain's medium."""
     sigma_t, sigma_s, g = (np.asarray(a, np.float64) for a in (sigma_t, sigma_s, g))
@@ -112,9 +120,7 @@ def solve_diffusion(Q0, Q1, sigma_t, sigma_s, g, h, rtol=1e-4, max_iterations=0,
     tolerance (see :func:`pcg`).
     """
     if factor > 1:
-        ss = coarsen(sigma_s, factor, "mean")
-        g = np.divide(coarsen(sigma_s * g, factor, "mean"), ss, out=np.zeros_like(ss), where=ss > 0)
-        sigma_t, sigma_s = coarsen(sigma_t, factor, "mean"), ss
+        sigma_t, sigma_s, g = coarse_optics(sigma_t, sigma_s, g, factor)
         Q0, Q1 = coarsen(Q0, factor), coarsen(Q1, factor)
         h = h * factor
     D, sah3, mask = coefficients(sigma_t, sigma_s, g, h)

@@ -72,6 +72,10 @@ class WalkResult:
     (medium.transport_medium) and ``direct`` was swapped for the unscattered light through the
     true density (walk.replace_direct): the walk's own, through the capped density, which the
     gathered last bounce scatters (docs/METHOD.md Eq. 25g); None otherwise.
+    pending, tail, tail_factor: where the eighteen-ordinate walk stopped at
+    ``method.tail`` of its light in flight, the packets it then held (walk.pending_packets) and
+    their walk on blocks of tail_factor^3 of its cells (walk.walk_tail; its phi and flux on the
+    blocks, a part of the scattered light); None where it walked to the tolerance.
     scattered: a point light's light that scattered at least once, walked by the ordinates on
     a box of the medium (lights.point, docs/METHOD.md "A point light's ordinates"): that walk's
     own result on the domain's ``grid`` (its ``direct`` None), while phi, phia and direct here
@@ -98,6 +102,9 @@ class WalkResult:
     cells_sent: int = 0        # the sweeps' cells that sent a packet, summed over the sweeps (the work
                                # they did; the six-ordinate sweeps count packets, up to six a cell;
                                # a Jacobi wavefront does not count them)
+    pending: tuple | None = None   # packets taken out when it stopped for its tail (walk.walk_tail)
+    tail: "WalkResult | None" = None   # its tail's walk on blocks of tail_factor^3 of its cells
+    tail_factor: int = 1
 
 
 @dataclass
@@ -126,6 +133,8 @@ class DomainSolution:
                 "cell_size": self.domain.cell_size, "solver": r.solver, "iterations": r.iterations,
                 "residual": r.residual, "converged": r.converged, "cell_updates": r.cell_updates,
                 "cells_sent": r.cells_sent,
+                "tail_sweeps": r.tail.iterations if r.tail else 0,
+                "tail_cells_sent": r.tail.cells_sent if r.tail else 0,
                 "seconds_resample": self.seconds_resample, "seconds_propagate": r.seconds,
                 "seconds_diffusion": r.seconds_diffusion,
                 "diffusion_iterations": r.diffusion.iterations if r.diffusion else 0,

@@ -393,9 +393,11 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q) -> float:
 
 
 def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, n_cells: int,
-                          injected: float, progress=None) -> tuple[float, int, int]:
+                          injected: float, progress=None, least: int = 0, floor: float = 0.0
+                          ) -> tuple[float, int, int]:
     """Run thresholded Gauss-Seidel sweeps until the power in flight is <= target or ``cap``
-    sweeps have run; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
+    sweeps have run, and at least ``least`` sweeps unless the power in flight is <= ``floor``
+    first; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
     number of cells that sent). Returns (in flight, sweeps, cells that sent over all sweeps).
 
     Southwell-style: only cells holding more than twice the mean pending energy send; the
@@ -406,7 +408,7 @@ def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, 
     fraction = SOUTHWELL_FRACTION
     it = 0
     sent_total = 0
-    while in_flight > target and it < cap:
+    while (in_flight > target or (it < least and in_flight > floor)) and it < cap:
         if in_flight < 10.0 * target:
             fraction = min(fraction, 0.5)
         in_flight, sent = one_sweep(it, fraction * in_flight / n_cells)
@@ -614,7 +616,7 @@ def edge_factors(x: np.ndarray, e: np.float32) -> np.ndarray:
 
 
 def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress=None,
-                     skip=None, source=None) -> tuple[int, float, float, int]:
+                     skip=None, source=None, tail=0.0, tail_factor=0) -> tuple[int, float, float, int, tuple | None]:
     """The eighteen-ordinate walk (kernels/ordinates18.py) of :func:`walk_box`: as
     :func:`walk_ordinates` with a direction per face and per edge of the lattice, visiting
     every cell of a pending row that is not skipped. The injected light enters ordinate +d of
@@ -628,7 +630,10 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     crosses along its ordinate without a visit. The pending state W, Wa is float32 (m, 18), one
     row per cell not skipped (its index in ``cell``, int32, the domain's shape, -1 where
     skipped). ``source``: packets pending at the start in place of the injected light
-    (:func:`place`)."""
+    (:func:`place`). With ``tail_factor`` > 0 it stops once at most ``tail`` of the injected
+    power is in flight after two sweeps or more (one each way along d), and the packets then
+    pending, if more than ``target``, are taken out of the walk and returned on blocks of
+    tail_factor^3 cells (:func:`block_packets`; else None), the power in flight then 0."""
     shape = Th.shape
     n = int(np.prod(shape))
     kept = np.ones(shape, np.bool_) if skip is None else ~np.asarray(skip, np.bool_)
@@ -671,16 +676,96 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
                                             ordinates_ahead(ORDINATES18, (fd, fu, fv)))
         HELD18[0] += held
         return K.total_energy(flat), sent
-    in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n, injected,
-                                                progress)
-    return it, in_flight, absorbed, sent
+    if tail_factor:         # at least one sweep each way along d before the tail
+        in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), max(target, tail * injected),
+                                                    cap, 18 * n, injected, progress, least=2, floor=target)
+    else:
+        in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n,
+                                                    injected, progress)
+    if tail_factor and in_flight > target:
+        return it, 0.0, absorbed, sent, block_packets(W, Wa, cell, pending, tail_factor)
+    return it, in_flight, absorbed, sent, None
+
+
+def block_packets(W, Wa, cell, pending, factor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The packets an ordinates walk holds (W, Wa float32 (m, n_ordinates), one row per cell not
+    skipped: ``cell``; its rows (k, i) marked ``pending`` the only ones holding any) moved to the blocks of factor^3 cells that hold them, summed per
+    ordinate (kernels.ordinates18.pending_blocks), as :func:`place` takes them on the blocks'
+    grid: (index int64 (3, k), the blocks holding any; power float32 (k, n_ordinates); moment,
+    the same times each lobe's anisotropy)."""
+    shape = tuple(-(-s // factor) for s in cell.shape)
+    P = np.zeros(shape + (W.shape[1],), np.float32)
+    M = np.zeros_like(P)
+    KO18.pending_blocks(W, Wa, cell, pending, factor, P, M)
+    held = (P > 0.0).any(axis=3)
+    return np.array(np.nonzero(held)), P[held], M[held]
+
+
+def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: float, decay: str, cap: int,
+              progress=None) -> WalkResult:
+    """The eighteen-ordinate walk's last light on coarser cells (docs/METHOD.md, "The walk's
+    tail on wider cells"): the packets a walk on cells of size h with ``optics`` (sigma_t,
+    sigma_s, g, float32, its shape) held when it stopped, moved to blocks of factor^3 of its
+    cells (``source``, :func:`block_packets`), walked on the blocks with their optics
+    (diffusion.coarse_optics) until at most ``target`` [W] is in flight. ``read``: the cells
+    whose fields are read (bool, the walk's shape; None: all); a block is read where any of
+    its cells is, or where it holds a packet. Returns the blocks' WalkResult (phi and flux on
+    the blocks, cells of size factor h; :func:`add_tail` adds them to the walk's)."""
+    from .diffusion import coarse_optics            # diffusion imports nothing of the walk's
+    sigma_t, sigma_s, g = (x.astype(np.float32) for x in coarse_optics(*optics, factor))
+    H = h * factor
+    read_blocks = np.ones(sigma_t.shape, np.bool_)
+    if read is not None:
+        read_blocks[...] = False
+        k, i, j = np.nonzero(read)
+        read_blocks[k // factor, i // factor, j // factor] = True
+        read_blocks[tuple(source[0])] = True
+    power = float(np.sum(source[1], dtype=np.float64))
+    Th, Dh = medium_factors(sigma_t, sigma_s, g, H, decay)
+    return walk_box(Th, Dh, None, a0, H, "moment", "ordinates", min(target / max(power, 1e-300), 1.0), cap,
+                    progress=progress, scatter=scatter_factor(sigma_s, H), read=read_blocks, ordinates=18,
+                    source=source)
+
+
+def add_tail(walk: WalkResult, tail: WalkResult, factor: int, read) -> None:
+    """Add the fields of ``tail`` (:func:`walk_tail`, on blocks of factor^3 cells) to the walk's
+    phi, phia and flux (its cells', where ``read``; None: every cell), trilinear between the
+    blocks' centres (kernels.sampling.upsample_blocks)."""
+    coarse = np.ascontiguousarray(np.stack([tail.phi, *tail.flux], axis=-1))
+    fine = np.zeros(walk.phi.shape + (4,), np.float32)
+    needed = np.ones(walk.phi.shape, np.bool_) if read is None else read
+    KS.upsample_blocks(coarse, factor, needed, fine)
+    walk.phi += fine[..., 0]
+    for a in range(3):
+        walk.flux[a] += fine[..., 1 + a]
+    walk.phia = walk.flux[0]
+
+
+def walk_the_tail(walk: WalkResult, optics, h: float, a0: float, read, factor: int, tolerance: float,
+                  decay: str, cap: int) -> None:
+    """Walk the packets ``walk`` (an eighteen-ordinate walk on cells of size h with ``optics``,
+    stopped by :func:`walk_box`'s ``tail``) still held, on blocks of factor^3 of its cells,
+    until at most ``tolerance`` of the light it was injected is in flight (:func:`walk_tail`),
+    and add their fields to its own (:func:`add_tail`) and their budget to its budget; its
+    ``tail`` is then that walk, its ``pending`` None, and its seconds include the tail's."""
+    t0 = time.perf_counter()
+    b = walk.budget
+    tail = walk_tail(optics, h, a0, walk.pending, read, factor, tolerance * b.injected, decay, cap)
+    add_tail(walk, tail, factor, read)
+    for name in ("reflected", "transmitted", "side", "absorbed", "in_flight"):
+        setattr(b, name, getattr(b, name) + getattr(tail.budget, name))
+    walk.residual = b.in_flight / max(b.injected, 1e-300)
+    walk.converged = tail.converged
+    walk.seconds += time.perf_counter() - t0
+    walk.tail, walk.tail_factor, walk.pending = tail, factor, None
 
 
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
              rule: str = "moment", solver: str = "sweep", tolerance: float = 1e-3,
              max_iterations: int = 0, periodic: bool = False, progress=None,
              handover: tuple[float, np.ndarray] | None = None, scatter: np.ndarray | None = None,
-             read: np.ndarray | None = None, ordinates: int = 6, source=None) -> WalkResult:
+             read: np.ndarray | None = None, ordinates: int = 6, source=None, tail: tuple[float, int] = (0.0, 0)
+             ) -> WalkResult:
     """Walk light injected into slice k = 0 of a rectilinear domain until (almost) all of it
     has left.
 
@@ -718,6 +803,10 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         source: the "ordinates" solver only: packets pending at cell centres at the start
             (:func:`place`; a point light's first scattering), in place of the injected light;
             ``injection`` is then ignored and may be None, and ``injected`` is their power.
+        tail: (share, factor), the eighteen-ordinate walk only: with share > 0 it stops once
+            at most that share of the injected light is in flight after two sweeps or more,
+            and what it then holds is returned in the result's ``pending`` on blocks of
+            factor^3 cells, for :func:`walk_the_tail` (None if at most ``tolerance`` was left).
     """
     Th = np.ascontiguousarray(Th, np.float32)
     Dh = np.ascontiguousarray(Dh, np.float32)
@@ -765,9 +854,10 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
         Sh = np.ascontiguousarray(scatter, np.float32)
         skip = skipped_cells(Th, Dh, Sh, read) if read is not None else None
         if ordinates == 18:
-            it, in_flight, budget.absorbed, sent = walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi,
-                                                                    flux, tally, target, cap, progress, skip,
-                                                                    source)
+            at, factor = tail if tail[0] > 0.0 else (0.0, 0)
+            it, in_flight, budget.absorbed, sent, pending = walk_ordinates18(
+                Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, target, cap, progress, skip, source, at,
+                factor)
         else:
             it, in_flight, budget.absorbed, sent = walk_ordinates(Th, Dh, Sh, injection, a0, inv_area, phi, flux,
                                                                   tally, target, cap, progress, skip, source)
@@ -806,6 +896,9 @@ def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h
     budget.absorbed += float(tally[K.ABSORBED])
     budget.in_flight = in_flight
     residual = in_flight / max(budget.injected, 1e-300)
-    return WalkResult(phi, phia, budget, it, it * int(np.prod(shape)), residual, in_flight <= target,
-                      seconds, solver, handed=Q if handover is not None else None,
-                      flux=flux if solver == "ordinates" else None, cells_sent=sent)
+    result = WalkResult(phi, phia, budget, it, it * int(np.prod(shape)), residual, in_flight <= target,
+                        seconds, solver, handed=Q if handover is not None else None,
+                        flux=flux if solver == "ordinates" else None, cells_sent=sent)
+    if solver == "ordinates" and ordinates == 18:
+        result.pending = pending
+    return result

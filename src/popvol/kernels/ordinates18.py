@@ -299,3 +299,28 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
     for g in range(groups):
         held_parts += held_n[g, 0]
     return add_row_parts(part, tally, row_work), held_parts
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def pending_blocks(W, Wa, cell, pending, factor, P, M):
+    """Add to P, M float32 (b_d, b_u, b_v, n) the power and moment pending in each ordinate,
+    W, Wa float32 (m, n) (one row per cell not skipped: ``cell``, int32 (n_d, n_u, n_v)), summed
+    over the cells of each block of factor^3 cells (b = ceil(n_cells / factor) per axis) in
+    the order of the cells (k, i, j): the packets an ordinates walk holds, moved to the blocks
+    that hold them (walk.walk_tail). Rows (k, i) not marked ``pending`` (uint8 (n_d, n_u)) hold
+    none and are not read. One slab of blocks per thread, so the bits do not depend on the
+    threads. NumPy twin: tests/twins.py (pending_blocks)."""
+    n0, n1, n2 = cell.shape
+    n = W.shape[1]
+    for kb in nb.prange(P.shape[0]):
+        for k in range(kb * factor, min((kb + 1) * factor, n0)):
+            for i in range(n1):
+                if not pending[k, i]:
+                    continue
+                for j in range(n2):
+                    r = cell[k, i, j]
+                    if r >= 0:
+                        ib, jb = i // factor, j // factor
+                        for o in range(n):
+                            P[kb, ib, jb, o] += W[r, o]
+                            M[kb, ib, jb, o] += Wa[r, o]

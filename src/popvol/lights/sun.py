@@ -17,8 +17,12 @@ from .. import check
 from ..domains import DirectionalDomain, directional_domain, resample_medium
 from ..errors import PopvolError
 from ..kernels.sampling import domain_to_world
-from ..walk import direct_fluence, handover_factor, medium_factors, scatter_factor, walk_box
+from ..walk import (default_max_iterations, direct_fluence, handover_factor, medium_factors, scatter_factor,
+                    walk_box, walk_the_tail)
 from .base import HandOver, Light
+
+#: the eighteen-ordinate walk's tail (method.tail) is walked on blocks of TAIL_FACTOR^3 of its cells
+TAIL_FACTOR = 2
 
 
 @dataclass
@@ -125,7 +129,8 @@ class SunDomain(DirectionalDomain):
         broad lobe (a0 < 1), which has no direct field. The six-ordinate walk carries every
         order itself: no hand-over (docs/METHOD.md, "Six ordinates"); it crosses the empty
         cells outside ``read`` (:meth:`cells_read`; None: every cell read) without visiting
-        them."""
+        them. The eighteen-ordinate walk walks its last light (below ``method.tail`` in flight)
+        on blocks of TAIL_FACTOR^3 cells (walk.walk_the_tail)."""
         sigma_t, sigma_s, g = optics
         Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
         handover = None
@@ -138,7 +143,13 @@ class SunDomain(DirectionalDomain):
         scatter = scatter_factor(sigma_s, self.h) if method.solver == "ordinates" else None
         result = walk_box(Th, Dh, injection, self.a0, self.h, method.rule, method.solver,
                           method.tolerance, method.max_iterations, progress=progress, handover=handover,
-                          scatter=scatter, read=read, ordinates=method.ordinates)
+                          scatter=scatter, read=read, ordinates=method.ordinates,
+                          tail=(method.tail if method.solver == "ordinates" else 0.0, TAIL_FACTOR))
+        if result.pending is not None:
+            # its last light walked on cells TAIL_FACTOR times as wide (docs/METHOD.md, "The
+            # walk's tail on wider cells")
+            walk_the_tail(result, optics, self.h, self.a0, read, TAIL_FACTOR, method.tolerance, method.decay,
+                          method.max_iterations or default_max_iterations(self.shape, "ordinates"))
         if self.unscattered or method.solver == "ordinates":
             # a broad lobe's unscattered part, kept apart from the ordinates' walked light for the
             # gathered last bounce (docs/METHOD.md Eq. 26a)
