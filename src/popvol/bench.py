@@ -15,7 +15,7 @@ compiles the kernels and fills the caches.
   cumulus under the sun at 256 cells (with eighteen and six ordinates) and lit by a point light
   inside it at 128 and 256 cells (96x64); the render stage includes the gather. Beside them the
   sweeps' work rate per second of the propagate stage: with ordinates, packets sent (up to 18
-  or 6 per cell and sweep); with one lobe, cells that sent a packet (the throughput rows count
+  or 6 per cell and sweep; the tail's on wider cells included, walk.walk_the_tail); with one lobe, cells that sent a packet (the throughput rows count
   every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
   (``popvol/bench_scenes``) and name their volume by file name only; it is looked up in the
   data folder (:func:`find_data`).
@@ -375,7 +375,8 @@ def bench_scene(load, repeat: int, source: str) -> dict:
             stages["solve"].append(t2 - t1)
             stages["render"].append(t3 - t2)
             stages["total"].append(t3 - t0)
-            sent = sum(ds.result.cells_sent for ds in solution.domains)
+            sent = sum(ds.result.cells_sent + (ds.result.tail.cells_sent if ds.result.tail else 0)
+                       for ds in solution.domains)
             if sent:
                 sends.append(sent / solution.seconds["propagate"])
     d = [ds.result for ds in solution.domains]
@@ -387,6 +388,8 @@ def bench_scene(load, repeat: int, source: str) -> dict:
             "domains": len(solution.domains), "domain_shape": list(solution.domains[0].domain.shape),
             "iterations": [r.iterations for r in d], "residual": max(r.residual for r in d),
             "cells_sent": [r.cells_sent for r in d],
+            "tail_iterations": [r.tail.iterations if r.tail else 0 for r in d],
+            "tail_cells_sent": [r.tail.cells_sent if r.tail else 0 for r in d],
             "cells_sent_per_s": spread(sends) if sends else None,
             "diffusion_iterations": [r.diffusion.iterations if r.diffusion else 0 for r in d],
             "seconds": {k: spread(v) for k, v in stages.items()},
@@ -497,6 +500,9 @@ def print_report(res: dict, console) -> None:
                                     for r in rows.values()])
         for k in STAGES:
             t.add_row(k, *[_fmt(r["seconds"][k], spec=".2f") for r in rows.values()])
+        t.add_row("sweeps (+ tail's)", *[f"{max(r['iterations'])}" + (f" (+{max(r['tail_iterations'])})"
+                                                                     if max(r["tail_iterations"]) else "")
+                                        for r in rows.values()])
         t.add_row("sweeps, M cells sent/s", *[_fmt(r["cells_sent_per_s"], 1e-6) if r["cells_sent_per_s"] else "-"
                                              for r in rows.values()])
         t.add_row("peak MB", *[f"{r['peak_rss_mb']:.0f}" for r in rows.values()])
