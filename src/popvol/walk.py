@@ -23,6 +23,7 @@ import numba
 import numpy as np
 
 from . import hg
+from .diffusion import coarse_optics
 from .domains import check_memory, grow
 from .kernels import binned as KB
 from .kernels import cells as KC
@@ -689,10 +690,10 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
 
 def block_packets(W, Wa, cell, pending, factor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The packets an ordinates walk holds (W, Wa float32 (m, n_ordinates), one row per cell not
-    skipped: ``cell``; its rows (k, i) marked ``pending`` the only ones holding any) moved to the blocks of factor^3 cells that hold them, summed per
-    ordinate (kernels.ordinates18.pending_blocks), as :func:`place` takes them on the blocks'
-    grid: (index int64 (3, k), the blocks holding any; power float32 (k, n_ordinates); moment,
-    the same times each lobe's anisotropy)."""
+    skipped: ``cell``; only its rows (k, i) marked ``pending`` hold any) moved to the blocks of
+    factor^3 cells that hold them, summed per ordinate (kernels.ordinates18.pending_blocks), as
+    :func:`place` takes them on the blocks' grid: (index int64 (3, k), the blocks holding any;
+    power float32 (k, n_ordinates); moment, the same times each lobe's anisotropy)."""
     shape = tuple(-(-s // factor) for s in cell.shape)
     P = np.zeros(shape + (W.shape[1],), np.float32)
     M = np.zeros_like(P)
@@ -711,7 +712,6 @@ def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: fl
     whose fields are read (bool, the walk's shape; None: all); a block is read where any of
     its cells is, or where it holds a packet. Returns the blocks' WalkResult (phi and flux on
     the blocks, cells of size factor h; :func:`add_tail` adds them to the walk's)."""
-    from .diffusion import coarse_optics            # diffusion imports nothing of the walk's
     sigma_t, sigma_s, g = (x.astype(np.float32) for x in coarse_optics(*optics, factor))
     H = h * factor
     read_blocks = np.ones(sigma_t.shape, np.bool_)
