@@ -345,24 +345,34 @@ def test_walk_crossing_empty_cells_keeps_energy_and_the_fields_read(rng):
     assert r.cells_sent < 0.7 * every.cells_sent
 
 
-def test_a_solve_crossing_empty_space_maps_the_same_fields(monkeypatch):
-    """pipeline.solve passes the cells the renderer reads (DirectionalDomain.cells_read) to a
-    six-ordinate walk, which crosses the other empty cells without visits: on a field of small
+@pytest.mark.parametrize("tail", [0.0, 0.1])
+def test_a_solve_crossing_empty_space_maps_the_same_fields(monkeypatch, tail):
+    """pipeline.solve passes the cells the renderer reads (DirectionalDomain.cells_read) to the
+    ordinates' walk, which crosses the other empty cells without visits: on a field of small
     cumulus with air between them, the fields on the medium's grid are those of the walk that
-    visits every cell, within 1e-4 of their largest value, for fewer packets."""
+    visits every cell, within 1e-4 of their largest value, for fewer packets. With the walk's
+    tail on wider cells (``tail`` 0.1, the default), the two walks stop for it after the same two
+    sweeps but hold different packets then (skipping changes the order in which packets arrive,
+    not where a converged walk puts them: 7 % against 11 % of the light), and the tail's fields
+    depend on where it starts: within 2 % and 3 % (L1; measured 0.9 % and 1.4 %) for the scattered
+    fluence and its first moment."""
     from popvol.domains import DirectionalDomain
     scene = popvol.scene_from_dict({
         "medium": {"type": "procedural", "style": "field", "resolution": 40, "seed": 3, "scale": 60.0,
                    "albedo": 0.99, "g": 0.85},
         "lights": [{"type": "directional", "direction": [0.5, -0.8, -0.3], "irradiance": [1.0, 1.0, 1.0]}],
         "camera": {"width": 16, "height": 16},
-        "method": {"resolution": 48, "tolerance": 1e-6}})
+        "method": {"resolution": 48, "tolerance": 1e-6, "tail": tail}})
     skipping = popvol.solve(scene)
     monkeypatch.setattr(DirectionalDomain, "cells_read", lambda self, medium, seen: None)
     every = popvol.solve(scene)
-    for name in ("phid", "flux", "direct"):
+    np.testing.assert_array_equal(skipping.direct, every.direct)
+    for name, bound in (("phid", 0.02), ("flux", 0.03)):
         a, b = getattr(skipping, name), getattr(every, name)
-        np.testing.assert_allclose(a, b, atol=1e-4 * np.abs(b).max())
+        if tail:
+            assert np.abs(a - b).sum() <= bound * np.abs(b).sum(), name
+        else:
+            np.testing.assert_allclose(a, b, atol=1e-4 * np.abs(b).max())
     assert skipping.domains[0].result.cells_sent < 0.7 * every.domains[0].result.cells_sent
 
 

@@ -709,8 +709,9 @@ def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: fl
     sigma_s, g, float32, its shape) held when it stopped, moved to blocks of factor^3 of its
     cells (``source``, :func:`block_packets`), walked on the blocks with their optics
     (diffusion.coarse_optics) until at most ``target`` [W] is in flight. ``read``: the cells
-    whose fields are read (bool, the walk's shape; None: all); a block is read where any of
-    its cells is, or where it holds a packet. Returns the blocks' WalkResult (phi and flux on
+    whose fields are read (bool, the walk's shape; None: all); a block is read where it or one
+    of its 26 neighbours holds such a cell (the blocks :func:`add_tail`'s trilinear stencils
+    reach), or where it holds a packet. Returns the blocks' WalkResult (phi and flux on
     the blocks, cells of size factor h; :func:`add_tail` adds them to the walk's)."""
     sigma_t, sigma_s, g = (x.astype(np.float32) for x in coarse_optics(*optics, factor))
     H = h * factor
@@ -719,6 +720,7 @@ def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: fl
         read_blocks[...] = False
         k, i, j = np.nonzero(read)
         read_blocks[k // factor, i // factor, j // factor] = True
+        read_blocks = grow(read_blocks)          # the blocks their trilinear stencils reach
         read_blocks[tuple(source[0])] = True
     power = float(np.sum(source[1], dtype=np.float64))
     Th, Dh = medium_factors(sigma_t, sigma_s, g, H, decay)
