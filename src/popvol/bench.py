@@ -15,8 +15,9 @@ compiles the kernels and fills the caches.
   cumulus under the sun at 256 cells (with eighteen and six ordinates) and lit by a point light
   inside it at 128 and 256 cells (96x64); the render stage includes the gather. Beside them the
   sweeps' work rate per second of the propagate stage: with ordinates, packets sent (up to 18
-  or 6 per cell and sweep; the tail's on wider cells included, walk.walk_the_tail); with one lobe, cells that sent a packet (the throughput rows count
-  every cell a sweep visits, sending or not). The WDAS scenes ship with popvol
+  or 6 per cell and sweep; the tail's on wider cells included, walk.walk_the_tail); with one
+  lobe, cells that sent a packet (the throughput rows count every cell a sweep visits, sending
+  or not). The WDAS scenes ship with popvol
   (``popvol/bench_scenes``) and name their volume by file name only; it is looked up in the
   data folder (:func:`find_data`).
   A scene whose volume is missing or unreadable is reported as skipped, with the reason.

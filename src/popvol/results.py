@@ -73,7 +73,7 @@ class WalkResult:
     true density (walk.replace_direct): the walk's own, through the capped density, which the
     gathered last bounce scatters (docs/METHOD.md Eq. 25g); None otherwise.
     pending, tail, tail_factor: where the eighteen-ordinate walk stopped at
-    ``method.tail`` of its light in flight, the packets it then held (walk.pending_packets) and
+    ``method.tail`` of its light in flight, the packets it then held (walk.block_packets) and
     their walk on blocks of tail_factor^3 of its cells (walk.walk_tail; its phi and flux on the
     blocks, a part of the scattered light); None where it walked to the tolerance.
     scattered: a point light's light that scattered at least once, walked by the ordinates on

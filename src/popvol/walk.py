@@ -677,12 +677,10 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
                                             ordinates_ahead(ORDINATES18, (fd, fu, fv)))
         HELD18[0] += held
         return K.total_energy(flat), sent
-    if tail_factor:         # at least one sweep each way along d before the tail
-        in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), max(target, tail * injected),
-                                                    cap, 18 * n, injected, progress, least=2, floor=target)
-    else:
-        in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), target, cap, 18 * n,
-                                                    injected, progress)
+    # with a tail, at least one sweep each way along d before it
+    stop, least = (max(target, tail * injected), 2) if tail_factor else (target, 0)
+    in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), stop, cap, 18 * n, injected,
+                                                progress, least=least, floor=target)
     if tail_factor and in_flight > target:
         return it, 0.0, absorbed, sent, block_packets(W, Wa, cell, pending, tail_factor)
     return it, in_flight, absorbed, sent, None
@@ -702,8 +700,8 @@ def block_packets(W, Wa, cell, pending, factor: int) -> tuple[np.ndarray, np.nda
     return np.array(np.nonzero(held)), P[held], M[held]
 
 
-def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: float, decay: str, cap: int,
-              progress=None) -> WalkResult:
+def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: float, decay: str,
+              cap: int) -> WalkResult:
     """The eighteen-ordinate walk's last light on coarser cells (docs/METHOD.md, "The walk's
     tail on wider cells"): the packets a walk on cells of size h with ``optics`` (sigma_t,
     sigma_s, g, float32, its shape) held when it stopped, moved to blocks of factor^3 of its
@@ -715,24 +713,24 @@ def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: fl
     the blocks, cells of size factor h; :func:`add_tail` adds them to the walk's)."""
     sigma_t, sigma_s, g = (x.astype(np.float32) for x in coarse_optics(*optics, factor))
     H = h * factor
-    read_blocks = np.ones(sigma_t.shape, np.bool_)
-    if read is not None:
-        read_blocks[...] = False
+    if read is None:
+        read_blocks = np.ones(sigma_t.shape, np.bool_)
+    else:
+        holds = np.zeros(sigma_t.shape, np.bool_)
         k, i, j = np.nonzero(read)
-        read_blocks[k // factor, i // factor, j // factor] = True
-        read_blocks = grow(read_blocks)          # the blocks their trilinear stencils reach
+        holds[k // factor, i // factor, j // factor] = True
+        read_blocks = grow(holds)                # the blocks their trilinear stencils reach
         read_blocks[tuple(source[0])] = True
     power = float(np.sum(source[1], dtype=np.float64))
     Th, Dh = medium_factors(sigma_t, sigma_s, g, H, decay)
     return walk_box(Th, Dh, None, a0, H, "moment", "ordinates", min(target / max(power, 1e-300), 1.0), cap,
-                    progress=progress, scatter=scatter_factor(sigma_s, H), read=read_blocks, ordinates=18,
-                    source=source)
+                    scatter=scatter_factor(sigma_s, H), read=read_blocks, ordinates=18, source=source)
 
 
 def add_tail(walk: WalkResult, tail: WalkResult, factor: int, read) -> None:
     """Add the fields of ``tail`` (:func:`walk_tail`, on blocks of factor^3 cells) to the walk's
-    phi, phia and flux (its cells', where ``read``; None: every cell), trilinear between the
-    blocks' centres (kernels.sampling.upsample_blocks)."""
+    phi and flux (so to phia, its flux[0]; its cells', where ``read``; None: every cell),
+    trilinear between the blocks' centres (kernels.sampling.upsample_blocks)."""
     coarse = np.ascontiguousarray(np.stack([tail.phi, *tail.flux], axis=-1))
     fine = np.zeros(walk.phi.shape + (4,), np.float32)
     needed = np.ones(walk.phi.shape, np.bool_) if read is None else read
@@ -740,7 +738,6 @@ def add_tail(walk: WalkResult, tail: WalkResult, factor: int, read) -> None:
     walk.phi += fine[..., 0]
     for a in range(3):
         walk.flux[a] += fine[..., 1 + a]
-    walk.phia = walk.flux[0]
 
 
 def walk_the_tail(walk: WalkResult, optics, h: float, a0: float, read, factor: int, tolerance: float,
