@@ -345,17 +345,17 @@ def test_walk_crossing_empty_cells_keeps_energy_and_the_fields_read(rng):
     assert r.cells_sent < 0.7 * every.cells_sent
 
 
-@pytest.mark.parametrize("tail", [0.0, 0.1])
+@pytest.mark.parametrize("tail", [0.0, 0.2])
 def test_a_solve_crossing_empty_space_maps_the_same_fields(monkeypatch, tail):
     """pipeline.solve passes the cells the renderer reads (DirectionalDomain.cells_read) to the
     ordinates' walk, which crosses the other empty cells without visits: on a field of small
     cumulus with air between them, the fields on the medium's grid are those of the walk that
     visits every cell, within 1e-4 of their largest value, for fewer packets. With the walk's
-    tail on wider cells (``tail`` 0.1, the default), the two walks stop for it after the same two
+    tail on wider cells (``tail`` 0.2, the default), the two walks stop for it after the same two
     sweeps but hold different packets then (skipping changes the order in which packets arrive,
-    not where a converged walk puts them: 7 % against 11 % of the light), and the tail's fields
-    depend on where it starts: within 2 % and 3 % (L1; measured 0.9 % and 1.4 %) for the scattered
-    fluence and its first moment."""
+    and so which of them are faint enough to wait, not where a converged walk puts them: 2.8 %
+    against 4.5 % of the light), and the fields depend on where the tail starts: within 3 % and
+    5 % (L1; measured 2.0 % and 3.7 %) for the scattered fluence and its first moment."""
     from popvol.domains import DirectionalDomain
     scene = popvol.scene_from_dict({
         "medium": {"type": "procedural", "style": "field", "resolution": 40, "seed": 3, "scale": 60.0,
@@ -367,7 +367,7 @@ def test_a_solve_crossing_empty_space_maps_the_same_fields(monkeypatch, tail):
     monkeypatch.setattr(DirectionalDomain, "cells_read", lambda self, medium, seen: None)
     every = popvol.solve(scene)
     np.testing.assert_array_equal(skipping.direct, every.direct)
-    for name, bound in (("phid", 0.02), ("flux", 0.03)):
+    for name, bound in (("phid", 0.03), ("flux", 0.05)):
         a, b = getattr(skipping, name), getattr(every, name)
         if tail:
             assert np.abs(a - b).sum() <= bound * np.abs(b).sum(), name

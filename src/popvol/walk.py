@@ -35,6 +35,10 @@ from .results import Budget, WalkResult
 
 SPLIT_TABLE_SIZE = 4097
 SOUTHWELL_FRACTION = 2.0      # cells send above twice the mean pending energy (sweep_until_converged)
+#: with a tail (method.tail), the eighteen-ordinate walk on its own cells sends only the packets
+#: above 8 times the mean pending power per cell and ordinate; the fainter ones wait, and what
+#: still waits when it stops goes to the tail (walk_ordinates18)
+TAIL_SOUTHWELL_FRACTION = 8.0
 ANISOTROPY_BINS = 17          # the binned wavefront's bins per cell (anisotropy_bins): spacing 1/8
 
 
@@ -394,23 +398,24 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q) -> float:
 
 
 def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, n_cells: int,
-                          injected: float, progress=None, least: int = 0, floor: float = 0.0
-                          ) -> tuple[float, int, int]:
+                          injected: float, progress=None, least: int = 0, floor: float = 0.0,
+                          fraction: float = SOUTHWELL_FRACTION) -> tuple[float, int, int]:
     """Run thresholded Gauss-Seidel sweeps until the power in flight is <= target or ``cap``
     sweeps have run, and at least ``least`` sweeps unless the power in flight is <= ``floor``
     first; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
     number of cells that sent). Returns (in flight, sweeps, cells that sent over all sweeps).
 
-    Southwell-style: only cells holding more than twice the mean pending energy send; the
-    others wait for more to arrive, which skips most of the faint light in empty space. Near the
-    tolerance the fraction drops to 1/2 (the fullest cell always qualifies: max >= mean), and
-    should no cell qualify, the next sweep sends them all.
+    Southwell-style: only cells holding more than ``fraction`` (2) times the mean pending
+    energy send; the others wait for more to arrive, which skips most of the faint light in
+    empty space. Near the tolerance (in flight under 10 times ``floor``, or ``target`` where
+    ``floor`` is 0) the fraction drops to 1/2 (the fullest cell always qualifies: max >= mean),
+    and should no cell qualify, the next sweep sends them all.
     """
-    fraction = SOUTHWELL_FRACTION
+    near = floor if floor > 0.0 else target
     it = 0
     sent_total = 0
     while (in_flight > target or (it < least and in_flight > floor)) and it < cap:
-        if in_flight < 10.0 * target:
+        if in_flight < 10.0 * near:
             fraction = min(fraction, 0.5)
         in_flight, sent = one_sweep(it, fraction * in_flight / n_cells)
         fraction = fraction if sent > 0 else 0.0
@@ -631,10 +636,12 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     crosses along its ordinate without a visit. The pending state W, Wa is float32 (m, 18), one
     row per cell not skipped (its index in ``cell``, int32, the domain's shape, -1 where
     skipped). ``source``: packets pending at the start in place of the injected light
-    (:func:`place`). With ``tail_factor`` > 0 it stops once at most ``tail`` of the injected
-    power is in flight after two sweeps or more (one each way along d), and the packets then
-    pending, if more than ``target``, are taken out of the walk and returned on blocks of
-    tail_factor^3 cells (:func:`block_packets`; else None), the power in flight then 0."""
+    (:func:`place`). With ``tail_factor`` > 0 only packets above TAIL_SOUTHWELL_FRACTION times
+    the mean pending power per cell and ordinate are sent (the fainter wait), it stops once at
+    most ``tail`` of the injected power is in flight after two sweeps or more (one each way
+    along d), and the packets then pending, if more than ``target``, are taken out of the walk
+    and returned on blocks of tail_factor^3 cells (:func:`block_packets`; else None), the power
+    in flight then 0."""
     shape = Th.shape
     n = int(np.prod(shape))
     kept = np.ones(shape, np.bool_) if skip is None else ~np.asarray(skip, np.bool_)
@@ -677,10 +684,12 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
                                             ordinates_ahead(ORDINATES18, (fd, fu, fv)))
         HELD18[0] += held
         return K.total_energy(flat), sent
-    # with a tail, at least one sweep each way along d before it
-    stop, least = (max(target, tail * injected), 2) if tail_factor else (target, 0)
+    # with a tail, at least one sweep each way along d before it, and the faint packets left
+    # for it (TAIL_SOUTHWELL_FRACTION)
+    stop, least, fraction = ((max(target, tail * injected), 2, TAIL_SOUTHWELL_FRACTION) if tail_factor
+                             else (target, 0, SOUTHWELL_FRACTION))
     in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), stop, cap, 18 * n, injected,
-                                                progress, least=least, floor=target)
+                                                progress, least=least, floor=target, fraction=fraction)
     if tail_factor and in_flight > target:
         return it, 0.0, absorbed, sent, block_packets(W, Wa, cell, pending, tail_factor)
     return it, in_flight, absorbed, sent, None
