@@ -296,32 +296,17 @@ def blob(peak, shape=(24, 24, 24), h=0.05):
     return (sigma_t, (0.99 * sigma_t).astype(np.float32), np.full(shape, 0.85, np.float32)), h
 
 
-def tail_errors(walked, own, sigma_t) -> dict:
-    """How far a walk with its tail (walk.walk_the_tail) is from the walk on its own cells: the
-    fluence in the medium summed (L1) and at most, relative to the own walk's sum and largest
-    value; the first moment (L1); each budget term, relative."""
-    m = sigma_t > 0
-    out = {"L1": np.abs(walked.phi - own.phi)[m].sum() / own.phi[m].sum(),
-           "max": np.abs(walked.phi - own.phi)[m].max() / own.phi[m].max(),
-           "flux": np.abs(walked.flux - own.flux)[:, m].sum() / np.abs(own.flux[:, m]).sum()}
-    for key in ("reflected", "transmitted", "side", "absorbed"):
-        out[key] = abs(getattr(walked.budget, key) / getattr(own.budget, key) - 1.0)
-    return out
-
-
 @pytest.mark.parametrize("peak", [40.0, 160.0])
 def test_the_tail_on_wider_cells_keeps_the_walk(peak):
     """A cloud of 24^3 cells (optical depth up to about 24 and 96 across) walked to a tolerance of
     1e-6 on its own cells, and with method.tail's default 0.2: two sweeps on its own cells that
-    send only the packets above walk.TAIL_SOUTHWELL_FRACTION times the mean, then the 18-19 % of
-    the light still in flight on blocks of 2^3 cells (walk.walk_the_tail), 12 across. The budget
-    still closes to 1e-6 of the light injected. Against the walk on its own cells, the fluence in
-    the medium is within 4 % summed (L1; measured 1.9 % and 3.5 %) and within 11 % of its largest
-    value everywhere (5.2 % and 9.7 %), its first moment within 10 % (L1; 3.9 % and 8.7 %), and
-    the light reflected, transmitted, escaped sideways and absorbed within 7 % (at most 5.7 %,
-    the blocks absorbing less). With ``tail`` 0.1 (4 sweeps on its own cells, 7-8 % of the light
-    on the blocks) every one of these is smaller: the error is the blocks', in proportion to the
-    light they walk (L1 0.8 % and 1.3 %)."""
+    send only the packets above twice the mean pending power, then the 8 % and 12 % of the light
+    still in flight on blocks of 2^3 cells (walk.walk_the_tail), 12 across. The budget still closes
+    to 1e-6 of the light injected. Against the walk on its own cells, the fluence in the medium is
+    within 3 % summed (L1; measured 1.0 % and 2.1 %) and within 8 % of its largest value
+    everywhere (3.8 % and 6.2 %), its first moment within 7 % (L1; 1.9 % and 5.6 %), and the light
+    reflected, transmitted, escaped sideways and absorbed within 5 % (at most 4.2 %, the blocks
+    absorbing less)."""
     from popvol.walk import walk_the_tail
     (sigma_t, sigma_s, g), h = blob(peak)
     Th, Dh = medium_factors(sigma_t, sigma_s, g, h, "poisson")
@@ -329,31 +314,28 @@ def test_the_tail_on_wider_cells_keeps_the_walk(peak):
     injection = np.full(sigma_t.shape[1:], h * h, np.float32)
     kw = dict(solver="ordinates", tolerance=1e-6, scatter=Sh, ordinates=18)
     own = walk_box(Th, Dh, injection, 1.0, h, **kw)
-    errors = {}
-    for tail, sweeps, share in ((0.2, 2, (0.12, 0.25)), (0.1, 4, (0.04, 0.12))):
-        r = walk_box(Th, Dh, injection, 1.0, h, tail=(tail, 2), **kw)
-        assert r.iterations == sweeps and r.pending is not None
-        walk_the_tail(r, (sigma_t, sigma_s, g), h, 1.0, None, 2, 1e-6, "poisson", 400)
-        b = r.budget
-        assert r.converged and r.pending is None
-        assert share[0] < r.tail.budget.injected / b.injected < share[1]
-        assert b.reflected + b.transmitted + b.side + b.absorbed + b.in_flight == pytest.approx(b.injected, rel=1e-6)
-        np.testing.assert_array_equal(r.phia, r.flux[0])
-        errors[tail] = tail_errors(r, own, sigma_t)
-    e = errors[0.2]
-    assert e["L1"] <= 0.04 and e["max"] <= 0.11 and e["flux"] <= 0.10, e
+    r = walk_box(Th, Dh, injection, 1.0, h, tail=(0.2, 2), **kw)
+    assert r.iterations == 2 and r.pending is not None
+    walk_the_tail(r, (sigma_t, sigma_s, g), h, 1.0, None, 2, 1e-6, "poisson", 400)
+    b, b_own = r.budget, own.budget
+    assert r.converged and r.pending is None
+    assert 0.05 < r.tail.budget.injected / b.injected < 0.15
+    assert b.reflected + b.transmitted + b.side + b.absorbed + b.in_flight == pytest.approx(b.injected, rel=1e-6)
+    m = sigma_t > 0
+    assert np.abs(r.phi - own.phi)[m].sum() <= 0.03 * own.phi[m].sum()
+    assert np.abs(r.phi - own.phi)[m].max() <= 0.08 * own.phi[m].max()
+    assert np.abs(r.flux - own.flux)[:, m].sum() <= 0.07 * np.abs(own.flux[:, m]).sum()
+    np.testing.assert_array_equal(r.phia, r.flux[0])
     for key in ("reflected", "transmitted", "side", "absorbed"):
-        assert e[key] <= 0.07, key
-    for key in ("L1", "max", "flux", "reflected", "absorbed"):
-        assert errors[0.1][key] < e[key], key
+        assert getattr(b, key) == pytest.approx(getattr(b_own, key), rel=0.05), key
 
 
 def test_the_tail_moves_the_regression_cloud_under_a_percent():
     """The regression cloud (tests/test_regression.py) solved and rendered by default (its sun's
     walk: 2 sweeps on its own cells, the rest on blocks of 2^3 cells) and with ``tail = 0`` (6
     sweeps on its own cells): the images agree within 1 % in brightness overall and in each band
-    of the other's luminance (measured: the tail's image 0.45-0.65 % brighter), relMSE between
-    them below 1e-4 (3.6e-5)."""
+    of the other's luminance (measured: the tail's image 0.45-0.7 % brighter), relMSE between
+    them below 1e-4 (3.9e-5)."""
     from pathlib import Path
     from popvol import metrics
     scene_file = Path(__file__).resolve().parent / "fixtures" / "regression_cloud.toml"

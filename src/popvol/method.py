@@ -179,7 +179,7 @@ KNOBS: tuple[Knob, ...] = (
          "cells, stops there once at most this share of the injected light is in flight after two sweeps "
          "or more (one each way along the light), and walks what it then holds to the tolerance on blocks "
          "of 2^3 cells; 0 = all of it on its own cells. Images move under 1.5 % at 128 cells, under 1 % at "
-         "256 and up to 3 % at 64 (docs/METHOD.md, \"The walk's tail on wider cells\")."),
+         "256 and up to 3.1 % at 64 (docs/METHOD.md, \"The walk's tail on wider cells\")."),
     Knob("max_iterations", 0, (0, 10_000_000), "Cap on iterations; 0 = automatic.",
          "A capped run is reported as not converged in `--stats`.",
          default_text="0 (automatic: 400 sweeps, or 40 x the domain's perimeter for Jacobi)"),

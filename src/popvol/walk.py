@@ -35,10 +35,6 @@ from .results import Budget, WalkResult
 
 SPLIT_TABLE_SIZE = 4097
 SOUTHWELL_FRACTION = 2.0      # cells send above twice the mean pending energy (sweep_until_converged)
-#: with a tail (method.tail), the eighteen-ordinate walk on its own cells sends only the packets
-#: above 8 times the mean pending power per cell and ordinate; the fainter ones wait, and what
-#: still waits when it stops goes to the tail (walk_ordinates18)
-TAIL_SOUTHWELL_FRACTION = 8.0
 ANISOTROPY_BINS = 17          # the binned wavefront's bins per cell (anisotropy_bins): spacing 1/8
 
 
@@ -398,19 +394,20 @@ def hand_over_pending(W, Wa, Th, Dh, diffusive, Q) -> float:
 
 
 def sweep_until_converged(one_sweep, in_flight: float, target: float, cap: int, n_cells: int,
-                          injected: float, progress=None, least: int = 0, floor: float = 0.0,
-                          fraction: float = SOUTHWELL_FRACTION) -> tuple[float, int, int]:
+                          injected: float, progress=None, least: int = 0, floor: float = 0.0
+                          ) -> tuple[float, int, int]:
     """Run thresholded Gauss-Seidel sweeps until the power in flight is <= target or ``cap``
     sweeps have run, and at least ``least`` sweeps unless the power in flight is <= ``floor``
     first; ``one_sweep(it, w_min)`` sweeps once and returns (power still in flight,
     number of cells that sent). Returns (in flight, sweeps, cells that sent over all sweeps).
 
-    Southwell-style: only cells holding more than ``fraction`` (2) times the mean pending
-    energy send; the others wait for more to arrive, which skips most of the faint light in
-    empty space. Near the tolerance (in flight under 10 times ``floor``, or ``target`` where
-    ``floor`` is 0) the fraction drops to 1/2 (the fullest cell always qualifies: max >= mean),
-    and should no cell qualify, the next sweep sends them all.
+    Southwell-style: only cells holding more than twice the mean pending energy (in flight
+    over ``n_cells``) send; the others wait for more to arrive, which skips most of the faint
+    light in empty space. Near the tolerance (in flight under 10 times ``floor``, or ``target``
+    where ``floor`` is 0) the fraction drops to 1/2 (the fullest cell always qualifies: max >=
+    mean), and should no cell qualify, the next sweep sends them all.
     """
+    fraction = SOUTHWELL_FRACTION
     near = floor if floor > 0.0 else target
     it = 0
     sent_total = 0
@@ -636,8 +633,8 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
     crosses along its ordinate without a visit. The pending state W, Wa is float32 (m, 18), one
     row per cell not skipped (its index in ``cell``, int32, the domain's shape, -1 where
     skipped). ``source``: packets pending at the start in place of the injected light
-    (:func:`place`). With ``tail_factor`` > 0 only packets above TAIL_SOUTHWELL_FRACTION times
-    the mean pending power per cell and ordinate are sent (the fainter wait), it stops once at
+    (:func:`place`). With ``tail_factor`` > 0 only the packets above twice the mean pending
+    power per ordinate of the cells not skipped are sent (the fainter wait), it stops once at
     most ``tail`` of the injected power is in flight after two sweeps or more (one each way
     along d), and the packets then pending, if more than ``target``, are taken out of the walk
     and returned on blocks of tail_factor^3 cells (:func:`block_packets`; else None), the power
@@ -684,12 +681,11 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
                                             ordinates_ahead(ORDINATES18, (fd, fu, fv)))
         HELD18[0] += held
         return K.total_energy(flat), sent
-    # with a tail, at least one sweep each way along d before it, and the faint packets left
-    # for it (TAIL_SOUTHWELL_FRACTION)
-    stop, least, fraction = ((max(target, tail * injected), 2, TAIL_SOUTHWELL_FRACTION) if tail_factor
-                             else (target, 0, SOUTHWELL_FRACTION))
-    in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), stop, cap, 18 * n, injected,
-                                                progress, least=least, floor=target, fraction=fraction)
+    # with a tail: at least one sweep each way along d before it, and the packets under twice
+    # the mean of the cells the walk holds (not of the whole domain, mostly empty) left for it
+    stop, least, slots = (max(target, tail * injected), 2, 18 * m) if tail_factor else (target, 0, 18 * n)
+    in_flight, it, sent = sweep_until_converged(one_sweep, K.total_energy(flat), stop, cap, slots, injected,
+                                                progress, least=least, floor=target)
     if tail_factor and in_flight > target:
         return it, 0.0, absorbed, sent, block_packets(W, Wa, cell, pending, tail_factor)
     return it, in_flight, absorbed, sent, None
