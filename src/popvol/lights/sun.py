@@ -129,8 +129,8 @@ class SunDomain(DirectionalDomain):
         broad lobe (a0 < 1), which has no direct field. The six-ordinate walk carries every
         order itself: no hand-over (docs/METHOD.md, "Six ordinates"); it crosses the empty
         cells outside ``read`` (:meth:`cells_read`; None: every cell read) without visiting
-        them. The eighteen-ordinate walk walks its last light (below ``method.tail`` in flight)
-        on blocks of TAIL_FACTOR^3 cells (walk.walk_the_tail)."""
+        them. The eighteen-ordinate walk walks its faint packets and its last light (below
+        ``method.tail`` in flight) on blocks of TAIL_FACTOR^3 cells (walk.walk_the_tail)."""
         sigma_t, sigma_s, g = optics
         Th, Dh = medium_factors(sigma_t, sigma_s, g, self.h, method.decay)
         handover = None
