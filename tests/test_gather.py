@@ -347,7 +347,7 @@ def test_grey_rgb_sweep_is_the_rgb_sweep():
 
 
 @pytest.mark.parametrize("g, scale, lights, within, mean_within", [
-    (0.6, 2.0, 8, 0.02, 0.01), (0.6, 30.0, 32, 0.05, 0.03), (0.85, 2.0, 8, 0.02, 0.01), (0.85, 2.0, 32, 0.02, 0.01),
+    (0.6, 2.0, 8, 0.02, 0.01), (0.6, 30.0, 32, 0.07, 0.03), (0.85, 2.0, 8, 0.02, 0.01), (0.85, 2.0, 32, 0.02, 0.01),
     (0.85, 100.0, 32, 0.16, 0.05)])
 def test_uniform_environment_keeps_a_white_medium_at_its_radiance(g, scale, lights, within, mean_within):
     """In an isotropic radiance field L0 a medium that absorbs nothing changes nothing: every
@@ -355,13 +355,16 @@ def test_uniform_environment_keeps_a_white_medium_at_its_radiance(g, scale, ligh
     transport equation). A cloud of albedo 1 under a uniform sky of L0 = 1, split into 8 or 32
     lights, renders every pixel that sees it at 1 (mean (min-max) measured, `python
     scripts/white_medium.py`): with g = 0.6 within 2 % at an optical depth of 2 along the view
-    (8 lights: 1.001 (0.993-1.015)) and within 5 % at 30 (32 lights: 0.982 (0.959-1.000); voxels
-    of 3.75 mean free paths, capped at 2.5 for light transport); with g = 0.85 within 2 % at 2
-    (8 lights: 0.996 (0.985-1.000); 32: 0.999 (0.989-1.001)). Each region's unscattered lobe is
+    (8 lights: 1.002 (0.994-1.018)) and within 7 % at 30 (32 lights: 0.977 (0.934-1.000); voxels
+    of 3.75 mean free paths, capped at 2.5 for light transport; with ``tail = 0``, every packet
+    walked on the domains' own cells, 0.982 (0.959-1.000): the darkest inner pixels darken with the
+    light the tail walks on blocks of 2^3 cells, 0.947 with a tenth of it, 0.934 with the 15 % of
+    the default, docs/METHOD.md "The walk's tail on wider cells"); with g = 0.85 within 2 % at 2
+    (8 lights: 0.997 (0.987-1.000); 32: 1.000 (0.993-1.003)). Each region's unscattered lobe is
     gathered in its region's own pattern (docs/METHOD.md Eq. 26a); one HG lobe per region for
     all its light left g = 0.85 at 2 with 8 lights at 0.964 (0.875-0.999) and with 32 at 0.991
     (0.954-1.003). A regression guard where the walk is known to be dark, g = 0.85 on voxels of
-    12.5 mean free paths (capped at 6.7, one transport mean free path): 0.955 (0.854-1.018), its
+    12.5 mean free paths (capped at 6.7, one transport mean free path): 0.952 (0.864-1.018), its
     inner pixels the dark ones (docs/METHOD.md, "Optically thick voxels")."""
     scene = sky_scene((1.0, 1.0, 1.0), (1.0, 1.0, 1.0), (1.0, 1.0, 1.0), lights=lights, albedo=1.0, g=g, scale=scale,
                       resolution=16)
