@@ -330,6 +330,63 @@ def test_the_tail_on_wider_cells_keeps_the_walk(peak):
         assert getattr(b, key) == pytest.approx(getattr(b_own, key), rel=0.05), key
 
 
+def test_the_southwell_threshold_halves_near_the_floor_not_the_stop():
+    """walk.sweep_until_converged sends above twice the mean pending power (in flight over
+    n_cells) until the power in flight nears ``floor`` (under 10 times it), then above half of
+    it; without a floor it nears ``target``. A walk with a tail stops at ``target`` = tail x the
+    light injected with the floor at the tolerance, so it keeps the factor 2 for its sweeps on its
+    own cells (docs/METHOD.md, "The walk's tail on wider cells")."""
+    from popvol.walk import sweep_until_converged
+
+    def thresholds(target, floor):
+        seen, state = [], {"in_flight": 1.0}
+
+        def one_sweep(it, w_min):
+            seen.append(w_min)
+            state["in_flight"] *= 0.25
+            return state["in_flight"], 1
+        in_flight, sweeps, _ = sweep_until_converged(one_sweep, 1.0, target, 50, 10, 1.0, least=2, floor=floor)
+        return seen, in_flight, sweeps
+
+    seen, in_flight, sweeps = thresholds(0.2, 1e-3)       # a tail: stop at a fifth, floor at the tolerance
+    assert sweeps == 2 and in_flight == pytest.approx(1 / 16)
+    assert seen == pytest.approx([2.0 * 1.0 / 10, 2.0 * 0.25 / 10])
+    seen, _, _ = thresholds(0.2, 0.0)                     # no floor: near the stop at once
+    assert seen[0] == pytest.approx(0.5 * 1.0 / 10)
+    seen, _, sweeps = thresholds(1e-3, 1e-3)              # no tail: the floor is the stop
+    assert sweeps == 5                                    # 0.25^5 < 1e-3
+    assert seen[3] == pytest.approx(2.0 * 0.25 ** 3 / 10)      # 0.016 in flight: not yet near
+    assert seen[4] == pytest.approx(0.5 * 0.25 ** 4 / 10)      # 0.0039 < 10 x 1e-3
+
+
+def test_a_walk_with_a_tail_takes_the_mean_over_the_cells_it_holds(monkeypatch):
+    """With a tail, the eighteen-ordinate walk's first threshold is twice the power in flight over
+    18 x the cells not skipped (those it holds: a domain mostly of air would otherwise let every
+    faint packet through); without one, twice it over 18 x all the domain's cells. The two walks
+    start with the same power in flight, so their first thresholds stand as the counts of cells."""
+    import popvol.walk as walk
+    (sigma_t, sigma_s, g), h = blob(40.0)
+    Th, Dh = medium_factors(sigma_t, sigma_s, g, h, "poisson")
+    Sh = scatter_factor(sigma_s, h)
+    injection = np.full(sigma_t.shape[1:], h * h, np.float32)
+    read = sigma_t > 0
+    seen = []
+    sweep = walk.KO18.ordinates18_sweep
+
+    def recording(*args):
+        seen.append(float(args[13]))                       # w_min
+        return sweep(*args)
+    monkeypatch.setattr(walk.KO18, "ordinates18_sweep", recording)
+    kept = int(np.count_nonzero(~walk.skipped_cells(Th, Dh, Sh, read)))
+    assert kept < 0.8 * sigma_t.size
+    kw = dict(solver="ordinates", tolerance=1e-6, scatter=Sh, ordinates=18, read=read)
+    walk_box(Th, Dh, injection, 1.0, h, tail=(0.2, 2), **kw)
+    with_tail = seen[0]
+    seen.clear()
+    walk_box(Th, Dh, injection, 1.0, h, **kw)
+    assert with_tail / seen[0] == pytest.approx(sigma_t.size / kept, rel=1e-6)
+
+
 def test_the_tail_moves_the_regression_cloud_under_a_percent():
     """The regression cloud (tests/test_regression.py) solved and rendered by default (its sun's
     walk: 2 sweeps on its own cells, the rest on blocks of 2^3 cells) and with ``tail = 0`` (6
