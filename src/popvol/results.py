@@ -72,10 +72,10 @@ class WalkResult:
     (medium.transport_medium) and ``direct`` was swapped for the unscattered light through the
     true density (walk.replace_direct): the walk's own, through the capped density, which the
     gathered last bounce scatters (docs/METHOD.md Eq. 25g); None otherwise.
-    pending, tail, tail_factor: where the eighteen-ordinate walk stopped at
-    ``method.tail`` of its light in flight, the packets it then held (walk.block_packets) and
-    their walk on blocks of tail_factor^3 of its cells (walk.walk_tail; its phi and flux on the
-    blocks, a part of the scattered light); None where it walked to the tolerance.
+    pending, tail: where the eighteen-ordinate walk stopped at ``method.tail`` of its light in
+    flight, the packets it then held (walk.block_packets) and their walk on blocks of its cells
+    (walk.walk_tail; its phi and flux on the blocks, a part of the scattered light); None where
+    it walked to the tolerance.
     scattered: a point light's light that scattered at least once, walked by the ordinates on
     a box of the medium (lights.point, docs/METHOD.md "A point light's ordinates"): that walk's
     own result on the domain's ``grid`` (its ``direct`` None), while phi, phia and direct here
@@ -103,8 +103,7 @@ class WalkResult:
                                # they did; the six-ordinate sweeps count packets, up to six a cell;
                                # a Jacobi wavefront does not count them)
     pending: tuple | None = None   # packets taken out when it stopped for its tail (walk.walk_tail)
-    tail: "WalkResult | None" = None   # its tail's walk on blocks of tail_factor^3 of its cells
-    tail_factor: int = 1
+    tail: "WalkResult | None" = None   # its tail's walk on blocks of its cells (walk.walk_the_tail)
 
 
 @dataclass

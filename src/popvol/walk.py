@@ -761,7 +761,7 @@ def walk_the_tail(walk: WalkResult, optics, h: float, a0: float, read, factor: i
     walk.residual = b.in_flight / max(b.injected, 1e-300)
     walk.converged = tail.converged
     walk.seconds += time.perf_counter() - t0
-    walk.tail, walk.tail_factor, walk.pending = tail, factor, None
+    walk.tail, walk.pending = tail, None
 
 
 def walk_box(Th: np.ndarray, Dh: np.ndarray, injection: np.ndarray, a0: float, h: float,
