@@ -48,7 +48,11 @@ So the second scattering toward the camera is transported, not modelled: near a 
 little light arrives from outside, which one lobe per cell cannot say. What the renderer then
 adds per sample is the single scattering (Solution.single_scattering()). ``out`` holds it toward
 a pinhole at ``eye`` at the voxels where ``needed``. The directions are swept in a few lanes
-that run in parallel, each with its own sums, one parallel region per frame.
+that run in parallel, each with its own sums, one parallel region per frame. An empty voxel
+that no light but the entering light reaches along w (nothing upstream of it holds medium)
+holds that light unchanged, and the sweeps pass it without interpolating or integrating
+(:func:`_untouched`): the same bits, since that light, 0 or an environment's, is constant
+along w.
 
 NumPy twin: tests/twins.py (gathered_source).
 """
@@ -408,6 +412,10 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
     # lobes' L_in and q, of the slice before (prev) and this one (cur)
     prev = np.zeros((5, nb_, nc_, n_out))
     cur = np.zeros((5, nb_, nc_, n_out))
+    touched_prev = np.zeros((nb_, nc_), np.bool_)      # (:func:`_untouched`, as in _sweep_grey)
+    touched_cur = np.zeros((nb_, nc_), np.bool_)
+    for ch in range(n_out):
+        prev[0, :, :, ch] = cur[0, :, :, ch] = boundary[ch]
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         for p in range(nb_):
@@ -415,6 +423,22 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                 ix, iy, iz = _voxel(a, s, p, q)                 # the voxel, where it is written
                 rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)     # where it is read
                 rho = density[rx, ry, rz]
+                if _untouched(rho, step, su[0][p] and sv[0][q], touched_prev, su[1][p], su[2][p], sv[1][q],
+                              sv[2][q]):
+                    if touched_cur[p, q]:           # else it holds them from two slices back
+                        for ch in range(n_out):
+                            cur[0, p, q, ch] = boundary[ch]
+                            cur[1, p, q, ch] = cur[2, p, q, ch] = cur[3, p, q, ch] = cur[4, p, q, ch] = 0.0
+                        touched_cur[p, q] = False
+                    if needed[rx, ry, rz]:
+                        f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
+                        norm[ix, iy, iz] += f
+                        for ch in range(n_out):
+                            out[ix, iy, iz, ch] += f * boundary[ch]
+                        if apart:
+                            norm_sun[ix, iy, iz] += f * f_sun
+                    continue
+                touched_cur[p, q] = True
                 j0 = j1 = j2 = d0 = d1 = d2 = 0.0
                 alb = 0.0
                 row = slot[rx, ry, rz]
@@ -455,6 +479,7 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                         for ch in range(n_out):
                             out_sun[ix, iy, iz, ch] += f * f_sun * cur[3, p, q, ch]
         prev, cur = cur, prev
+        touched_prev, touched_cur = touched_cur, touched_prev
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -519,6 +544,12 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
     prev = np.zeros((nb_, nc_, 13))
     cur = np.zeros((nb_, nc_, 13))           # ... and of this one
     up = np.zeros(13)
+    # whether a cell holds more than the light entering the grid (:func:`_untouched`); where
+    # not, it holds that light and nothing else
+    touched_prev = np.zeros((nb_, nc_), np.bool_)
+    touched_cur = np.zeros((nb_, nc_), np.bool_)
+    for buf in (prev, cur):
+        buf[:, :, 0], buf[:, :, 1], buf[:, :, 2] = b0, b1, b2
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
@@ -527,6 +558,23 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
             for q in range(nc_):
                 ix, iy, iz = _voxel(a, s, p, q)
                 rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)
+                if _untouched(density[rx, ry, rz], step, inside_p and sv[0][q], touched_prev, i0, i1, sv[1][q],
+                              sv[2][q]):
+                    if touched_cur[p, q]:           # else it holds them from two slices back
+                        cur[p, q, 0], cur[p, q, 1], cur[p, q, 2] = b0, b1, b2
+                        for n in range(3, n_up):
+                            cur[p, q, n] = 0.0
+                        touched_cur[p, q] = False
+                    if needed[rx, ry, rz]:
+                        f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
+                        norm[ix, iy, iz] += f
+                        out[ix, iy, iz, 0] += f * b0
+                        out[ix, iy, iz, 1] += f * b1
+                        out[ix, iy, iz, 2] += f * b2
+                        if apart:
+                            norm_sun[ix, iy, iz] += f * f_sun
+                    continue
+                touched_cur[p, q] = True
                 j0 = j1 = j2 = d0 = d1 = d2 = 0.0
                 alb = 0.0
                 row = slot[rx, ry, rz]
@@ -578,6 +626,22 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                         out_sun[ix, iy, iz, 1] += fs * m1
                         out_sun[ix, iy, iz, 2] += fs * m2
         prev, cur = cur, prev
+        touched_prev, touched_cur = touched_cur, touched_prev
+
+
+@nb.njit(inline="always", cache=True)
+def _untouched(rho, step, inside, touched, i0, i1, k0, k1):
+    """Whether a cell of density ``rho`` sees only the light entering the grid along the sweep's
+    direction, unchanged: it is empty, and so is the way upstream (``step`` 0, the first slice,
+    or the point upstream outside the grid, ``inside`` False) or the four cells of the slice
+    before that the point upstream lies between (rows i0, i1, columns k0, k1) hold only that
+    light (``touched`` False). Its radiance is then the entering light exactly, with nothing
+    emitted and no optical depth: a sweep skips its interpolation and segment."""
+    if rho != 0.0:
+        return False
+    if step == 0 or not inside:
+        return True
+    return not (touched[i0, k0] or touched[i0, k1] or touched[i1, k0] or touched[i1, k1])
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -603,6 +667,9 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
     apart = _any(separated)
     prev = np.zeros((5, nb_, nc_))          # L_in, q, sigma_t, the separated L_in and q of the slice before ...
     cur = np.zeros((5, nb_, nc_))           # ... and of this one
+    touched_prev = np.zeros((nb_, nc_), np.bool_)      # (:func:`_untouched`, as in _sweep_grey)
+    touched_cur = np.zeros((nb_, nc_), np.bool_)
+    prev[0] = cur[0] = boundary
     for step in range(na):
         s = step if wa > 0 else na - 1 - step
         path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
@@ -611,6 +678,20 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
             for q in range(nc_):
                 ix, iy, iz = _voxel(a, s, p, q)
                 rx, ry, rz = (s, p, q) if a == 2 else (ix, iy, iz)
+                if _untouched(density[rx, ry, rz], step, inside_p and sv[0][q], touched_prev, i0, i1, sv[1][q],
+                              sv[2][q]):
+                    if touched_cur[p, q]:           # else it holds them from two slices back
+                        cur[0, p, q] = boundary
+                        cur[1, p, q] = cur[2, p, q] = cur[3, p, q] = cur[4, p, q] = 0.0
+                        touched_cur[p, q] = False
+                    if needed[rx, ry, rz]:
+                        f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
+                        norm[ix, iy, iz] += f
+                        out[ix, iy, iz, 0] += f * boundary
+                        if apart:
+                            norm_sun[ix, iy, iz] += f * f_sun
+                    continue
+                touched_cur[p, q] = True
                 j = 0.0
                 d = 0.0
                 alb = 0.0
@@ -660,3 +741,4 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
                         norm_sun[ix, iy, iz] += f * f_sun
                         out_sun[ix, iy, iz, 0] += f * f_sun * light_sun
         prev, cur = cur, prev
+        touched_prev, touched_cur = touched_cur, touched_prev
