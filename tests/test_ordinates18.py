@@ -260,11 +260,13 @@ def test_skipping_empty_space_leaves_the_fields_that_are_read():
 
 
 def test_pending_blocks_match_their_twin():
-    """The packets of a walk moved to blocks of 2^3 and 3^3 cells (kernels.ordinates18.pending_blocks,
-    the walk's tail: walk.block_packets) are the twin's block sums of the packets placed at their
-    cells, to float32 rounding, on a domain whose sides are not multiples of the block, with
-    skipped cells and rows that hold no packet (not marked pending, so not read)."""
-    from popvol.kernels.ordinates18 import pending_blocks
+    """The packets of a walk moved to blocks of 2^3 and 3^3 cells (kernels.ordinates18.held_blocks
+    and pending_blocks, the walk's tail: walk.block_packets): the blocks marked held are those
+    where the twin's block sums are above 0, and the rows summed are the twin's sums of the
+    packets placed at their cells, to float32 rounding, on a domain whose sides are not
+    multiples of the block, with skipped cells and rows that hold no packet (not marked
+    pending, so not read)."""
+    from popvol.kernels.ordinates18 import held_blocks, pending_blocks
     rng = np.random.default_rng(7)
     shape = (7, 5, 6)
     kept = rng.random(shape) > 0.3
@@ -276,15 +278,47 @@ def test_pending_blocks_match_their_twin():
     k, i, j = np.nonzero(kept)
     W[cell[k, i, j][pending[k, i] == 0]] = 0.0
     Wa = (W * rng.uniform(-1.0, 1.0, W.shape)).astype(np.float32)
+    corner = cell[:3, :3, :3][kept[:3, :3, :3]]   # block (0, 0, 0) holds no packet
+    W[corner] = 0.0
+    Wa[corner] = 0.0
     for factor in (2, 3):
-        blocks = tuple(-(-s // factor) for s in shape)
-        P = np.zeros(blocks + (18,), np.float32)
-        M = np.zeros_like(P)
-        pending_blocks(W, Wa, cell, pending, factor, P, M)
         tP, tM = twins.pending_blocks(W, Wa, cell, factor)
-        np.testing.assert_allclose(P, tP, rtol=1e-6, atol=1e-6)
-        np.testing.assert_allclose(M, tM, rtol=1e-6, atol=1e-6)
+        tP_held = (tP > 0.0).any(axis=3)
+        held = np.zeros(tP.shape[:3], np.uint8)
+        held_blocks(W, cell, pending, factor, held)
+        np.testing.assert_array_equal(held, tP_held)
+        assert not held.all()
+        index = np.nonzero(held)
+        slot = np.full(held.shape, -1, np.int32)
+        slot[index] = np.arange(len(index[0]), dtype=np.int32)
+        P = np.zeros((len(index[0]), 18), np.float32)
+        M = np.zeros_like(P)
+        pending_blocks(W, Wa, cell, pending, factor, slot, P, M)
+        np.testing.assert_allclose(P, tP[index], rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(M, tM[index], rtol=1e-6, atol=1e-6)
         assert P.sum() == pytest.approx(W.sum(dtype=np.float64), rel=1e-6)
+
+
+
+def test_the_tail_is_added_as_the_upsampling_twin_says():
+    """kernels.sampling.add_upsampled_blocks (walk.add_tail) adds to phi and flux, where needed,
+    the twin's trilinear upsampling of the tail's blocks (channel 0 to phi, 1-3 to flux), each
+    value rounded to float32 first, and leaves the other cells as they were."""
+    from popvol.kernels.sampling import add_upsampled_blocks
+    rng = np.random.default_rng(11)
+    shape = (11, 7, 14)
+    needed = rng.random(shape) < 0.6
+    for factor in (2, 3):
+        coarse = rng.random(tuple(-(-n // factor) for n in shape) + (4,)).astype(np.float32)
+        phi = rng.random(shape).astype(np.float32)
+        flux = rng.standard_normal((3,) + shape).astype(np.float32)
+        phi0, flux0 = phi.copy(), flux.copy()
+        add_upsampled_blocks(coarse, factor, needed, phi, flux)
+        up = twins.upsample(coarse.astype(np.float64), factor, shape).astype(np.float32)
+        np.testing.assert_allclose(phi[needed], (phi0 + up[..., 0])[needed], rtol=1e-6, atol=1e-6)
+        for a in range(3):
+            np.testing.assert_allclose(flux[a][needed], (flux0[a] + up[..., 1 + a])[needed], rtol=1e-6, atol=1e-6)
+        assert np.array_equal(phi[~needed], phi0[~needed]) and np.array_equal(flux[:, ~needed], flux0[:, ~needed])
 
 
 def blob(peak, shape=(24, 24, 24), h=0.05):

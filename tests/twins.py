@@ -1222,7 +1222,7 @@ def pending_blocks(W, Wa, cell, factor: int):
 
 
 def upsample(coarse: np.ndarray, factor: int, shape: tuple) -> np.ndarray:
-    """Twin of kernels.sampling.upsample_blocks: (nx, ny, nz, C) from the blocks' values
+    """Twin of kernels.sampling.upsample_blocks (and add_upsampled_blocks): (nx, ny, nz, C) from the blocks' values
     ``coarse`` at their centres, trilinear at every voxel centre, clamped to the edge
     (separable: one linear interpolation per axis)."""
     out = coarse

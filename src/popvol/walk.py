@@ -694,15 +694,19 @@ def walk_ordinates18(Th, Dh, Sh, injection, a0, inv_area, phi, flux, tally, targ
 def block_packets(W, Wa, cell, pending, factor: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The packets an ordinates walk holds (W, Wa float32 (m, n_ordinates), one row per cell not
     skipped: ``cell``; only its rows (k, i) marked ``pending`` hold any) moved to the blocks of
-    factor^3 cells that hold them, summed per ordinate (kernels.ordinates18.pending_blocks), as
+    factor^3 cells that hold them, summed per ordinate (kernels.ordinates18.held_blocks, then
+    pending_blocks, which sums into one row per such block), as
     :func:`place` takes them on the blocks' grid: (index int64 (3, k), the blocks holding any;
     power float32 (k, n_ordinates); moment, the same times each lobe's anisotropy)."""
-    shape = tuple(-(-s // factor) for s in cell.shape)
-    P = np.zeros(shape + (W.shape[1],), np.float32)
+    held = np.zeros(tuple(-(-s // factor) for s in cell.shape), np.uint8)
+    KO18.held_blocks(W, cell, pending, factor, held)
+    index = np.array(np.nonzero(held))
+    slot = np.full(held.shape, -1, np.int32)
+    slot[tuple(index)] = np.arange(index.shape[1], dtype=np.int32)
+    P = np.zeros((index.shape[1], W.shape[1]), np.float32)
     M = np.zeros_like(P)
-    KO18.pending_blocks(W, Wa, cell, pending, factor, P, M)
-    held = (P > 0.0).any(axis=3)
-    return np.array(np.nonzero(held)), P[held], M[held]
+    KO18.pending_blocks(W, Wa, cell, pending, factor, slot, P, M)
+    return index, P, M
 
 
 def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: float, decay: str,
@@ -735,14 +739,10 @@ def walk_tail(optics, h: float, a0: float, source, read, factor: int, target: fl
 def add_tail(walk: WalkResult, tail: WalkResult, factor: int, read) -> None:
     """Add the fields of ``tail`` (:func:`walk_tail`, on blocks of factor^3 cells) to the walk's
     phi and flux (so to phia, its flux[0]; its cells', where ``read``; None: every cell),
-    trilinear between the blocks' centres (kernels.sampling.upsample_blocks)."""
-    coarse = np.ascontiguousarray(np.stack([tail.phi, *tail.flux], axis=-1))
-    fine = np.zeros(walk.phi.shape + (4,), np.float32)
+    trilinear between the blocks' centres (kernels.sampling.add_upsampled_blocks)."""
+    coarse = np.ascontiguousarray(np.stack([tail.phi, *tail.flux], axis=-1), np.float32)
     needed = np.ones(walk.phi.shape, np.bool_) if read is None else read
-    KS.upsample_blocks(coarse, factor, needed, fine)
-    walk.phi += fine[..., 0]
-    for a in range(3):
-        walk.flux[a] += fine[..., 1 + a]
+    KS.add_upsampled_blocks(coarse, factor, needed, walk.phi, walk.flux)
 
 
 def walk_the_tail(walk: WalkResult, optics, h: float, a0: float, read, factor: int, tolerance: float,

@@ -302,17 +302,14 @@ def ordinates18_sweep(W, Wa, Th, Dh, Sh, Th2, Dh2, Sh2, offs, table, inv_area, p
 
 
 @nb.njit(parallel=True, cache=True, nogil=True)
-def pending_blocks(W, Wa, cell, pending, factor, P, M):
-    """Add to P, M float32 (b_d, b_u, b_v, n) the power and moment pending in each ordinate,
-    W, Wa float32 (m, n) (one row per cell not skipped: ``cell``, int32 (n_d, n_u, n_v)), summed
-    over the cells of each block of factor^3 cells (b = ceil(n_cells / factor) per axis) in
-    the order of the cells (k, i, j): the packets an ordinates walk holds, moved to the blocks
-    that hold them (walk.walk_tail). Rows (k, i) not marked ``pending`` (uint8 (n_d, n_u)) hold
-    none and are not read. One slab of blocks per thread, so the bits do not depend on the
-    threads. NumPy twin: tests/twins.py (pending_blocks)."""
+def held_blocks(W, cell, pending, factor, held):
+    """Mark in ``held`` uint8 (b_d, b_u, b_v) the blocks of factor^3 cells (b = ceil(n_cells /
+    factor) per axis) where some cell holds a packet: a row of W float32 (m, n) (one per cell
+    not skipped: ``cell``, int32 (n_d, n_u, n_v)) with a power above 0. Rows (k, i) not marked
+    ``pending`` (uint8 (n_d, n_u)) hold none and are not read. One slab of blocks per thread."""
     n0, n1, n2 = cell.shape
     n = W.shape[1]
-    for kb in nb.prange(P.shape[0]):
+    for kb in nb.prange(held.shape[0]):
         for k in range(kb * factor, min((kb + 1) * factor, n0)):
             for i in range(n1):
                 if not pending[k, i]:
@@ -320,7 +317,34 @@ def pending_blocks(W, Wa, cell, pending, factor, P, M):
                 for j in range(n2):
                     r = cell[k, i, j]
                     if r >= 0:
-                        ib, jb = i // factor, j // factor
                         for o in range(n):
-                            P[kb, ib, jb, o] += W[r, o]
-                            M[kb, ib, jb, o] += Wa[r, o]
+                            if W[r, o] > 0.0:
+                                held[kb, i // factor, j // factor] = 1
+                                break
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def pending_blocks(W, Wa, cell, pending, factor, slot, P, M):
+    """Add to P, M float32 (k, n) the power and moment pending in each ordinate, W, Wa float32
+    (m, n) (one row per cell not skipped: ``cell``, int32 (n_d, n_u, n_v)), summed over the
+    cells of each block of factor^3 cells in the order of the cells (k, i, j) into the row
+    slot[block] (int32 (b_d, b_u, b_v), b = ceil(n_cells / factor) per axis; -1 for a block
+    that holds no packet: :func:`held_blocks`): the packets an ordinates walk holds, moved to
+    the blocks that hold them (walk.walk_tail). Rows (k, i) not marked ``pending`` (uint8 (n_d,
+    n_u)) hold none and are not read. One slab of blocks per thread, so the bits do not depend
+    on the threads. NumPy twin: tests/twins.py (pending_blocks)."""
+    n0, n1, n2 = cell.shape
+    n = W.shape[1]
+    for kb in nb.prange(slot.shape[0]):
+        for k in range(kb * factor, min((kb + 1) * factor, n0)):
+            for i in range(n1):
+                if not pending[k, i]:
+                    continue
+                for j in range(n2):
+                    r = cell[k, i, j]
+                    if r >= 0:
+                        b = slot[kb, i // factor, j // factor]
+                        if b >= 0:
+                            for o in range(n):
+                                P[b, o] += W[r, o]
+                                M[b, o] += Wa[r, o]

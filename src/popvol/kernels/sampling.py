@@ -223,28 +223,60 @@ def block_sums(x, factor, held, out):
                 out[k, i, j, l] = acc[j, l] / count
 
 
+@nb.njit(inline="always", fastmath=True, cache=True)
+def block_stencil(i, j, k, factor, shape):
+    """The trilinear stencil (:func:`cell_corners`) of voxel (i, j, k)'s centre on a grid of
+    ``shape`` holding the values at the centres of blocks of factor^3 voxels (block b's centre
+    at voxel index factor b + (factor - 1) / 2), clamped to the edge."""
+    half = 0.5 * (factor - 1)
+    return cell_corners((i - half) / factor, (j - half) / factor, (k - half) / factor, shape)
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def interpolate_channel(grid, corners, ch):
+    """:func:`interpolate` of channel ch of ``grid`` (nx, ny, nz, C)."""
+    i0, i1, j0, j1, k0, k1, fx, fy, fz = corners
+    c00 = grid[i0, j0, k0, ch] * (1 - fz) + grid[i0, j0, k1, ch] * fz
+    c01 = grid[i0, j1, k0, ch] * (1 - fz) + grid[i0, j1, k1, ch] * fz
+    c10 = grid[i1, j0, k0, ch] * (1 - fz) + grid[i1, j0, k1, ch] * fz
+    c11 = grid[i1, j1, k0, ch] * (1 - fz) + grid[i1, j1, k1, ch] * fz
+    return (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+
+
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
 def upsample_blocks(coarse, factor, needed, out):
     """out float32 (nx, ny, nz, C) at the voxels where ``needed``: the trilinear value of
-    ``coarse`` (bx, by, bz, C), the values at the centres of blocks of factor^3 voxels (block b's
-    centre at voxel index factor b + (factor - 1) / 2), clamped to the edge; other voxels are
-    not written. NumPy twin: tests/twins.py (upsample)."""
+    ``coarse`` (bx, by, bz, C), the values at the centres of blocks of factor^3 voxels
+    (:func:`block_stencil`), clamped to the edge; other voxels are not written. NumPy twin:
+    tests/twins.py (upsample)."""
     nx, ny, nz = needed.shape
-    half = 0.5 * (factor - 1)
     for i in nb.prange(nx):
         for j in range(ny):
             for k in range(nz):
                 if not needed[i, j, k]:
                     continue
-                corners = cell_corners((i - half) / factor, (j - half) / factor, (k - half) / factor,
-                                       coarse.shape)
-                i0, i1, j0, j1, k0, k1, fx, fy, fz = corners
+                corners = block_stencil(i, j, k, factor, coarse.shape)
                 for ch in range(coarse.shape[3]):
-                    c00 = coarse[i0, j0, k0, ch] * (1 - fz) + coarse[i0, j0, k1, ch] * fz
-                    c01 = coarse[i0, j1, k0, ch] * (1 - fz) + coarse[i0, j1, k1, ch] * fz
-                    c10 = coarse[i1, j0, k0, ch] * (1 - fz) + coarse[i1, j0, k1, ch] * fz
-                    c11 = coarse[i1, j1, k0, ch] * (1 - fz) + coarse[i1, j1, k1, ch] * fz
-                    out[i, j, k, ch] = (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+                    out[i, j, k, ch] = interpolate_channel(coarse, corners, ch)
+
+
+@nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
+def add_upsampled_blocks(coarse, factor, needed, phi, flux):
+    """Add :func:`upsample_blocks` of ``coarse`` float32 (bx, by, bz, 4) at the voxels where
+    ``needed`` (bool (nx, ny, nz)) to phi float32 (nx, ny, nz) (channel 0) and flux float32 (3,
+    nx, ny, nz) (channels 1-3), each value rounded to float32 before it is added: the walk's
+    tail on blocks added to the walk's fields (walk.add_tail) without a buffer of the fine
+    grid's size. NumPy twin: tests/twins.py (upsample)."""
+    nx, ny, nz = needed.shape
+    for i in nb.prange(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if not needed[i, j, k]:
+                    continue
+                corners = block_stencil(i, j, k, factor, coarse.shape)
+                phi[i, j, k] += np.float32(interpolate_channel(coarse, corners, 0))
+                for a in range(3):
+                    flux[a, i, j, k] += np.float32(interpolate_channel(coarse, corners, 1 + a))
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
