@@ -425,6 +425,26 @@ def test_block_sums_kernel_equals_numpy_twin():
         np.testing.assert_allclose(renderer.block_mean(x, factor), ref.block_mean(x, factor), rtol=1e-5)
 
 
+
+def test_block_mean_on_some_blocks_only():
+    """renderer.block_mean with ``only`` (kernels.sampling.block_sums' mask): the marked blocks
+    hold the twin's means, bit for bit those of the whole grid's, and the others 0; the voxels
+    on rows of blocks without a marked block are not read (NaN there changes nothing)."""
+    rng = np.random.default_rng(5)
+    x = rng.random((2, 11, 7, 9)).astype(np.float32)
+    for factor in (2, 3):
+        shape = tuple(-(-n // factor) for n in x.shape[1:])
+        only = rng.random(shape) < 0.3
+        only[0, 0] = False                      # the row of blocks (0, 0, :): no block marked
+        x_nan = x.copy()
+        x_nan[:, :factor, :factor, :] = np.nan
+        got = renderer.block_mean(x_nan, factor, only)
+        whole = renderer.block_mean(x, factor)
+        assert np.array_equal(got[:, only], whole[:, only])
+        np.testing.assert_allclose(got[:, only], ref.block_mean(x, factor)[:, only], rtol=1e-5)
+        assert not got[:, ~only].any()
+
+
 def test_upsample_reproduces_a_linear_field():
     """Trilinear interpolation between the blocks' centres is exact for a linear function of
     the voxel index, inside the outermost centres (clamped to the edge outside them); voxels not

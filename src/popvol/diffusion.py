@@ -47,7 +47,7 @@ import numpy as np
 
 from .domains import check_memory, frame_to_world
 from .kernels import diffusion as K
-from .kernels.sampling import block_sums
+from .kernels.sampling import NO_BLOCKS, block_sums
 
 
 @dataclass
@@ -69,7 +69,7 @@ def coarsen(x, factor: int, how: str = "sum") -> np.ndarray:
     if factor == 1:
         return np.asarray(x, np.float64)
     b = np.empty(tuple(-(-s // factor) for s in x.shape), np.float64)
-    block_sums(np.ascontiguousarray(x)[None], factor, False, b[None])
+    block_sums(np.ascontiguousarray(x)[None], factor, False, b[None], NO_BLOCKS)
     return b if how == "sum" else b / factor ** 3
 
 

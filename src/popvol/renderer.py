@@ -12,7 +12,7 @@ from .errors import PopvolError
 from .io.images import luminance
 from .kernels.gather import emission_lobes, eye_directions, gathered_source
 from .kernels.render import EDGE_DEPTH, background_radiance, render_kernel, substeps
-from .kernels.sampling import block_sums, densest_near_blocks, upsample_blocks
+from .kernels.sampling import NO_BLOCKS, block_sums, densest_near_blocks, upsample_blocks
 from .kernels.source import in_scattering_source
 from .pipeline import medium_key, seen_voxels, solve, transport_direct, voxels_seen
 from .results import Solution
@@ -566,26 +566,34 @@ def gather_factor(medium, resolution: int) -> int:
     return max(1, factor)
 
 
-def block_mean(x: np.ndarray, factor: int) -> np.ndarray:
+def block_mean(x: np.ndarray, factor: int, only: np.ndarray | None = None) -> np.ndarray:
     """float32: the mean of x (..., nx, ny, nz) over blocks of factor^3 voxels along its last
-    three axes (the blocks at the far edges over the voxels they hold; kernels/sampling.py)."""
+    three axes (the blocks at the far edges over the voxels they hold; kernels/sampling.py).
+    ``only`` (bool, the blocks' shape): the blocks made (0 elsewhere), of which x is read only
+    along the rows of voxels that cross them; None: all."""
     n = x.shape[-3:]
     flat = np.ascontiguousarray(x, np.float32).reshape((-1,) + n)
     out = np.empty((flat.shape[0],) + tuple(-(-s // factor) for s in n), np.float32)
-    block_sums(flat, factor, True, out)
+    block_sums(flat, factor, True, out, NO_BLOCKS if only is None else np.ascontiguousarray(only, np.uint8))
     return out.reshape(x.shape[:-3] + out.shape[1:])
 
 
 def coarse_bundles(medium, grid, seen, factor: int) -> tuple[tuple, tuple, np.ndarray]:
     """The render kernel's medium and grid bundles on blocks of factor^3 voxels (block means;
-    constants stay constants; the origin is the first block's centre), and the blocks the
-    upsampling reads: those holding a seen voxel and their neighbours."""
+    constants stay constants; the origin is the first block's centre; the fields 0 on the
+    blocks without medium), and the blocks the upsampling reads: those holding a seen voxel and
+    their neighbours."""
     density, scale, albedo, albedo_rgb, g_grid, origin, voxel, lo, hi, blocks, block_bits, occupied = medium
     phi, phia, direct, phid, flux, lobe_cap = grid
     const = (lambda a: a if a.size == 1 else block_mean(a, factor))
-    coarse_medium = (block_mean(density, factor), scale, const(albedo), albedo_rgb, const(g_grid),
+    coarse_density = block_mean(density, factor)
+    coarse_medium = (coarse_density, scale, const(albedo), albedo_rgb, const(g_grid),
                      origin + 0.5 * (factor - 1) * voxel, voxel * factor, lo, hi, blocks, block_bits, NO_CELLS)
-    coarse_grid = tuple(block_mean(f, factor) if f.size > 1 else f for f in (phi, phia, direct, phid, flux)) + (lobe_cap,)
+    # the fields only on the blocks that hold medium, the cells whose lobes the gather emits
+    # (the fields elsewhere are mostly pages never written, whose first read costs a page fault)
+    holding = coarse_density > 0
+    coarse_grid = tuple(block_mean(f, factor, holding) if f.size > 1 else f
+                        for f in (phi, phia, direct, phid, flux)) + (lobe_cap,)
     # the blocks holding a seen voxel and their 26 neighbours (the trilinear stencil): the same
     # one-block dilation voxels_seen makes of a density
     needed = voxels_seen(block_mean(seen.astype(np.float32), factor))

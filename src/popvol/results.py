@@ -240,8 +240,11 @@ class Solution:
         fields = np.repeat(self.points.fields[2:3], 3, axis=0)     # rows phi, phia := phi_dir
         direct = self.direct
         if self.lobe_a0 is not None and np.any(self.lobe_a0 > 0):
-            # an environment region's unscattered lobe is not a delta lobe along its direction
-            direct = direct * (self.lobe_a0 <= 0)[:, None, None, None, None].astype(direct.dtype)
+            # an environment region's unscattered lobe is not a delta lobe along its direction:
+            # its rows 0 (np.zeros, whose pages are only mapped where read), the others copied
+            direct = np.zeros(self.direct.shape, self.direct.dtype)
+            for l in np.flatnonzero(self.lobe_a0 <= 0):
+                direct[l] = self.direct[l]
         return dataclasses.replace(self, phi=direct, phia=direct, direct=direct,
                                    phid=_empty(0, *self.phid.shape[1:]), flux=_empty(0, *self.flux.shape[1:]),
                                    points=dataclasses.replace(self.points, fields=fields), single=True, lobe_a0=None)

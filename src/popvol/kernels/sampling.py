@@ -8,6 +8,8 @@ Grids of size 1 along an axis (constants stored as (1, 1, 1)) are constant along
 import numba as nb
 import numpy as np
 
+NO_BLOCKS = np.zeros((0, 0, 0), np.uint8)   # block_sums: no mask, every block
+
 
 @nb.njit(inline="always", fastmath=True, cache=True)
 def corner_weights(x, n):
@@ -183,7 +185,7 @@ def _domain_to_world(fields, n_fields, frame, dom_origin, h, world_origin, voxel
 
 
 @nb.njit(parallel=True, fastmath=True, cache=True, nogil=True)
-def block_sums(x, factor, held, out):
+def block_sums(x, factor, held, out, mask):
     """out (m, bx, by, bz): the sum of x (m, nx, ny, nz) over blocks of factor^3 voxels, b =
     ceil(n / factor) per axis, divided by the voxels the block holds if ``held`` (the mean; a
     block at a far edge averages the voxels it holds), else not (the sum, or the mean of the
@@ -191,11 +193,14 @@ def block_sums(x, factor, held, out):
     fixed order, in float64: per row of voxels along z, each block's run x[lf], x[lf + 1], ...
     into its partial sum (0 + x[lf] + x[lf + 1] + ...), the rows' partial sums then in row
     order. The partial sums of a row are made one offset r at a time across all its blocks
-    (the loop over blocks the compiler vectorises). NumPy twins: tests/twins.py (block_mean,
-    coarsen)."""
+    (the loop over blocks the compiler vectorises). ``mask`` uint8 (bx, by, bz): only the rows
+    of voxels that cross a block marked in it are read, and the blocks not marked are 0 (the
+    others' values do not depend on it); shape (0, 0, 0) (NO_BLOCKS): every block. NumPy
+    twins: tests/twins.py (block_mean, coarsen)."""
     m, nx, ny, nz = x.shape
     bx, by, bz = out.shape[1], out.shape[2], out.shape[3]
     whole = nz // factor                # blocks along z that hold factor voxels
+    masked = mask.shape[0] > 0
     for t in nb.prange(m * bx):         # one slab of blocks each
         k = t // bx
         i = t % bx
@@ -203,9 +208,19 @@ def block_sums(x, factor, held, out):
         a1 = min(a0 + factor, nx)
         acc = np.zeros((by, bz))
         s = np.empty(bz)
+        wanted = np.ones(by, np.bool_)  # the rows of blocks (i, j, :) with a block marked
+        if masked:
+            for j in range(by):
+                wanted[j] = False
+                for l in range(bz):
+                    if mask[i, j, l]:
+                        wanted[j] = True
+                        break
         for a in range(a0, a1):
             for b in range(ny):
                 j = b // factor
+                if not wanted[j]:
+                    continue
                 row = x[k, a, b]
                 s[:] = 0.0
                 for r in range(factor):
@@ -220,7 +235,7 @@ def block_sums(x, factor, held, out):
             nb_ = min(factor, ny - j * factor)
             for l in range(bz):
                 count = (a1 - a0) * nb_ * min(factor, nz - l * factor) if held else 1
-                out[k, i, j, l] = acc[j, l] / count
+                out[k, i, j, l] = acc[j, l] / count if not masked or mask[i, j, l] else 0.0
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
