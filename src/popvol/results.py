@@ -241,7 +241,8 @@ class Solution:
         direct = self.direct
         if self.lobe_a0 is not None and np.any(self.lobe_a0 > 0):
             # an environment region's unscattered lobe is not a delta lobe along its direction:
-            # its rows 0 (np.zeros, whose pages are only mapped where read), the others copied
+            # its rows 0 (np.zeros: pages Linux maps when first touched, not written here), the
+            # others copied
             direct = np.zeros(self.direct.shape, self.direct.dtype)
             for l in np.flatnonzero(self.lobe_a0 <= 0):
                 direct[l] = self.direct[l]

@@ -306,7 +306,8 @@ def held_blocks(W, cell, pending, factor, held):
     """Mark in ``held`` uint8 (b_d, b_u, b_v) the blocks of factor^3 cells (b = ceil(n_cells /
     factor) per axis) where some cell holds a packet: a row of W float32 (m, n) (one per cell
     not skipped: ``cell``, int32 (n_d, n_u, n_v)) with a power above 0. Rows (k, i) not marked
-    ``pending`` (uint8 (n_d, n_u)) hold none and are not read. One slab of blocks per thread."""
+    ``pending`` (uint8 (n_d, n_u)) hold none and are not read. One slab of blocks per thread.
+    NumPy twin: tests/twins.py (pending_blocks: the blocks whose sums are above 0)."""
     n0, n1, n2 = cell.shape
     n = W.shape[1]
     for kb in nb.prange(held.shape[0]):
