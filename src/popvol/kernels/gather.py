@@ -431,45 +431,39 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                             cur[0, p, q, ch] = boundary[ch]
                             cur[1, p, q, ch] = cur[2, p, q, ch] = cur[3, p, q, ch] = cur[4, p, q, ch] = 0.0
                         touched_cur[p, q] = False
-                    if needed[rx, ry, rz]:
-                        f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
-                        norm[ix, iy, iz] += f
-                        for ch in range(n_out):
-                            out[ix, iy, iz, ch] += f * boundary[ch]
-                        if apart:
-                            norm_sun[ix, iy, iz] += f * f_sun
-                    continue
-                touched_cur[p, q] = True
-                j0 = j1 = j2 = d0 = d1 = d2 = 0.0
-                alb = 0.0
-                row = slot[rx, ry, rz]
-                if row >= 0:
-                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated, pattern)
-                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
-                path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
-                t = a_up = a_v = 0.0
-                for ch in range(n_out):
-                    sig = scale[ch] * rho
-                    qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
-                    qd = sig * alb * albedo_rgb[ch] * (d0 if ch == 0 else (d1 if ch == 1 else d2))
-                    if step == 0:
-                        l_up, q_up, ld_up, qd_up = boundary[ch], qv, 0.0, qd
-                    elif su[0][p] and sv[0][q]:
-                        l_up = _bilinear(prev, su, sv, p, q, 0, ch)
-                        q_up = _bilinear(prev, su, sv, p, q, 1, ch)
-                        ld_up = qd_up = 0.0
-                        if apart:
-                            ld_up = _bilinear(prev, su, sv, p, q, 3, ch)
-                            qd_up = _bilinear(prev, su, sv, p, q, 4, ch)
-                    else:                           # upstream of the grid: what enters it
-                        l_up, q_up, ld_up, qd_up = boundary[ch], 0.0, 0.0, 0.0
-                    if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
-                        t, a_up, a_v = _segment(sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch), sig, path)
-                    cur[0, p, q, ch] = l_up * t + q_up * a_up + qv * a_v
-                    cur[1, p, q, ch] = qv
-                    cur[2, p, q, ch] = sig
-                    cur[3, p, q, ch] = ld_up * t + qd_up * a_up + qd * a_v
-                    cur[4, p, q, ch] = qd
+                    # it holds the entering light and 0 (cur), added toward the eye below
+                else:
+                    touched_cur[p, q] = True
+                    j0 = j1 = j2 = d0 = d1 = d2 = 0.0
+                    alb = 0.0
+                    row = slot[rx, ry, rz]
+                    if row >= 0:
+                        j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated, pattern)
+                        alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
+                    path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
+                    t = a_up = a_v = 0.0
+                    for ch in range(n_out):
+                        sig = scale[ch] * rho
+                        qv = sig * alb * albedo_rgb[ch] * (j0 if ch == 0 else (j1 if ch == 1 else j2))
+                        qd = sig * alb * albedo_rgb[ch] * (d0 if ch == 0 else (d1 if ch == 1 else d2))
+                        if step == 0:
+                            l_up, q_up, ld_up, qd_up = boundary[ch], qv, 0.0, qd
+                        elif su[0][p] and sv[0][q]:
+                            l_up = _bilinear(prev, su, sv, p, q, 0, ch)
+                            q_up = _bilinear(prev, su, sv, p, q, 1, ch)
+                            ld_up = qd_up = 0.0
+                            if apart:
+                                ld_up = _bilinear(prev, su, sv, p, q, 3, ch)
+                                qd_up = _bilinear(prev, su, sv, p, q, 4, ch)
+                        else:                           # upstream of the grid: what enters it
+                            l_up, q_up, ld_up, qd_up = boundary[ch], 0.0, 0.0, 0.0
+                        if ch == 0 or not grey:        # sigma_t's channels differ only in an RGB medium
+                            t, a_up, a_v = _segment(sig if step == 0 else _bilinear(prev, su, sv, p, q, 2, ch), sig, path)
+                        cur[0, p, q, ch] = l_up * t + q_up * a_up + qv * a_v
+                        cur[1, p, q, ch] = qv
+                        cur[2, p, q, ch] = sig
+                        cur[3, p, q, ch] = ld_up * t + qd_up * a_up + qd * a_v
+                        cur[4, p, q, ch] = qd
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     norm[ix, iy, iz] += f
@@ -566,54 +560,48 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                         for n in range(3, n_up):
                             cur[p, q, n] = 0.0
                         touched_cur[p, q] = False
-                    if needed[rx, ry, rz]:
-                        f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
-                        norm[ix, iy, iz] += f
-                        out[ix, iy, iz, 0] += f * b0
-                        out[ix, iy, iz, 1] += f * b1
-                        out[ix, iy, iz, 2] += f * b2
-                        if apart:
-                            norm_sun[ix, iy, iz] += f * f_sun
-                    continue
-                touched_cur[p, q] = True
-                j0 = j1 = j2 = d0 = d1 = d2 = 0.0
-                alb = 0.0
-                row = slot[rx, ry, rz]
-                if row >= 0:
-                    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, 3, separated, pattern)
-                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
-                sig = scale_0 * density[rx, ry, rz]
-                e0, e1, e2 = sig * alb * albedo_rgb[0], sig * alb * albedo_rgb[1], sig * alb * albedo_rgb[2]
-                q0, q1, q2 = e0 * j0, e1 * j1, e2 * j2
-                r0, r1, r2 = e0 * d0, e1 * d1, e2 * d2
-                if step == 0:
-                    t, a_up, a_v = _segment(sig, sig, path)
-                    up[0], up[1], up[2] = b0, b1, b2
-                    up[3], up[4], up[5] = q0, q1, q2
-                    up[7], up[8], up[9] = 0.0, 0.0, 0.0
-                    up[10], up[11], up[12] = r0, r1, r2
-                elif inside_p and sv[0][q]:
-                    k0, k1, fv = sv[1][q], sv[2][q], sv[3][q]
-                    e00, e01, e10, e11 = (1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv
-                    for n in range(n_up):
-                        up[n] = e00 * prev[i0, k0, n] + e01 * prev[i0, k1, n] + e10 * prev[i1, k0, n] + e11 * prev[i1, k1, n]
-                    t, a_up, a_v = _segment(up[6], sig, path)
-                else:                                       # upstream of the grid: what enters it
-                    t, a_up, a_v = _segment(0.0, sig, path)
-                    up[0], up[1], up[2] = b0, b1, b2
-                    for n in range(3, 13):
-                        up[n] = 0.0
-                l0 = up[0] * t + up[3] * a_up + q0 * a_v
-                l1 = up[1] * t + up[4] * a_up + q1 * a_v
-                l2 = up[2] * t + up[5] * a_up + q2 * a_v
-                m0 = up[7] * t + up[10] * a_up + r0 * a_v
-                m1 = up[8] * t + up[11] * a_up + r1 * a_v
-                m2 = up[9] * t + up[12] * a_up + r2 * a_v
-                cur[p, q, 0], cur[p, q, 1], cur[p, q, 2] = l0, l1, l2
-                cur[p, q, 3], cur[p, q, 4], cur[p, q, 5] = q0, q1, q2
-                cur[p, q, 6] = sig
-                cur[p, q, 7], cur[p, q, 8], cur[p, q, 9] = m0, m1, m2
-                cur[p, q, 10], cur[p, q, 11], cur[p, q, 12] = r0, r1, r2
+                    l0, l1, l2 = b0, b1, b2             # what it holds, added toward the eye below
+                    m0 = m1 = m2 = 0.0
+                else:
+                    touched_cur[p, q] = True
+                    j0 = j1 = j2 = d0 = d1 = d2 = 0.0
+                    alb = 0.0
+                    row = slot[rx, ry, rz]
+                    if row >= 0:
+                        j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, 3, separated, pattern)
+                        alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
+                    sig = scale_0 * density[rx, ry, rz]
+                    e0, e1, e2 = sig * alb * albedo_rgb[0], sig * alb * albedo_rgb[1], sig * alb * albedo_rgb[2]
+                    q0, q1, q2 = e0 * j0, e1 * j1, e2 * j2
+                    r0, r1, r2 = e0 * d0, e1 * d1, e2 * d2
+                    if step == 0:
+                        t, a_up, a_v = _segment(sig, sig, path)
+                        up[0], up[1], up[2] = b0, b1, b2
+                        up[3], up[4], up[5] = q0, q1, q2
+                        up[7], up[8], up[9] = 0.0, 0.0, 0.0
+                        up[10], up[11], up[12] = r0, r1, r2
+                    elif inside_p and sv[0][q]:
+                        k0, k1, fv = sv[1][q], sv[2][q], sv[3][q]
+                        e00, e01, e10, e11 = (1 - fu) * (1 - fv), (1 - fu) * fv, fu * (1 - fv), fu * fv
+                        for n in range(n_up):
+                            up[n] = e00 * prev[i0, k0, n] + e01 * prev[i0, k1, n] + e10 * prev[i1, k0, n] + e11 * prev[i1, k1, n]
+                        t, a_up, a_v = _segment(up[6], sig, path)
+                    else:                                       # upstream of the grid: what enters it
+                        t, a_up, a_v = _segment(0.0, sig, path)
+                        up[0], up[1], up[2] = b0, b1, b2
+                        for n in range(3, 13):
+                            up[n] = 0.0
+                    l0 = up[0] * t + up[3] * a_up + q0 * a_v
+                    l1 = up[1] * t + up[4] * a_up + q1 * a_v
+                    l2 = up[2] * t + up[5] * a_up + q2 * a_v
+                    m0 = up[7] * t + up[10] * a_up + r0 * a_v
+                    m1 = up[8] * t + up[11] * a_up + r1 * a_v
+                    m2 = up[9] * t + up[12] * a_up + r2 * a_v
+                    cur[p, q, 0], cur[p, q, 1], cur[p, q, 2] = l0, l1, l2
+                    cur[p, q, 3], cur[p, q, 4], cur[p, q, 5] = q0, q1, q2
+                    cur[p, q, 6] = sig
+                    cur[p, q, 7], cur[p, q, 8], cur[p, q, 9] = m0, m1, m2
+                    cur[p, q, 10], cur[p, q, 11], cur[p, q, 12] = r0, r1, r2
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     fs = f * f_sun
@@ -685,55 +673,50 @@ def _sweep_one_colour(medium, lobes, grids, across_z, w, weight, out, norm, boun
                         cur[0, p, q] = boundary
                         cur[1, p, q] = cur[2, p, q] = cur[3, p, q] = cur[4, p, q] = 0.0
                         touched_cur[p, q] = False
-                    if needed[rx, ry, rz]:
-                        f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
-                        norm[ix, iy, iz] += f
-                        out[ix, iy, iz, 0] += f * boundary
+                    light, light_sun = boundary, 0.0     # what it holds, added toward the eye below
+                else:
+                    touched_cur[p, q] = True
+                    j = 0.0
+                    d = 0.0
+                    alb = 0.0
+                    row = slot[rx, ry, rz]
+                    if row >= 0:
+                        for k in range(n_lobes):
+                            lk = lobes[row, k, 4]
+                            if lk != 0.0:
+                                if separated[k]:
+                                    d += lk
+                                elif lobes[row, k, 3] >= PATTERN:
+                                    j += lk * pattern[int(lobes[row, k, 3] - PATTERN)]
+                                else:
+                                    j += lk * f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1
+                                                   + lobes[row, k, 2] * w2, lobes[row, k, 3])
+                        alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
+                    sig = scale_0 * density[rx, ry, rz]
+                    e = sig * alb * albedo_0
+                    qv = e * j
+                    qd = e * d
+                    if step == 0:
+                        l_up, q_up, s_up, ld_up, qd_up = boundary, qv, sig, 0.0, qd
+                    elif inside_p and sv[0][q]:
+                        j0, j1, fv = sv[1][q], sv[2][q], sv[3][q]
+                        l_up = _lerp2(prev, 0, i0, i1, j0, j1, fu, fv)
+                        q_up = _lerp2(prev, 1, i0, i1, j0, j1, fu, fv)
+                        s_up = _lerp2(prev, 2, i0, i1, j0, j1, fu, fv)
+                        ld_up = qd_up = 0.0
                         if apart:
-                            norm_sun[ix, iy, iz] += f * f_sun
-                    continue
-                touched_cur[p, q] = True
-                j = 0.0
-                d = 0.0
-                alb = 0.0
-                row = slot[rx, ry, rz]
-                if row >= 0:
-                    for k in range(n_lobes):
-                        lk = lobes[row, k, 4]
-                        if lk != 0.0:
-                            if separated[k]:
-                                d += lk
-                            elif lobes[row, k, 3] >= PATTERN:
-                                j += lk * pattern[int(lobes[row, k, 3] - PATTERN)]
-                            else:
-                                j += lk * f_hg(lobes[row, k, 0] * w0 + lobes[row, k, 1] * w1
-                                               + lobes[row, k, 2] * w2, lobes[row, k, 3])
-                    alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
-                sig = scale_0 * density[rx, ry, rz]
-                e = sig * alb * albedo_0
-                qv = e * j
-                qd = e * d
-                if step == 0:
-                    l_up, q_up, s_up, ld_up, qd_up = boundary, qv, sig, 0.0, qd
-                elif inside_p and sv[0][q]:
-                    j0, j1, fv = sv[1][q], sv[2][q], sv[3][q]
-                    l_up = _lerp2(prev, 0, i0, i1, j0, j1, fu, fv)
-                    q_up = _lerp2(prev, 1, i0, i1, j0, j1, fu, fv)
-                    s_up = _lerp2(prev, 2, i0, i1, j0, j1, fu, fv)
-                    ld_up = qd_up = 0.0
-                    if apart:
-                        ld_up = _lerp2(prev, 3, i0, i1, j0, j1, fu, fv)
-                        qd_up = _lerp2(prev, 4, i0, i1, j0, j1, fu, fv)
-                else:                                       # upstream of the grid: what enters it
-                    l_up, q_up, s_up, ld_up, qd_up = boundary, 0.0, 0.0, 0.0, 0.0
-                t, a_up, a_v = _segment(s_up, sig, path)
-                light = l_up * t + q_up * a_up + qv * a_v
-                light_sun = ld_up * t + qd_up * a_up + qd * a_v
-                cur[0, p, q] = light
-                cur[1, p, q] = qv
-                cur[2, p, q] = sig
-                cur[3, p, q] = light_sun
-                cur[4, p, q] = qd
+                            ld_up = _lerp2(prev, 3, i0, i1, j0, j1, fu, fv)
+                            qd_up = _lerp2(prev, 4, i0, i1, j0, j1, fu, fv)
+                    else:                                       # upstream of the grid: what enters it
+                        l_up, q_up, s_up, ld_up, qd_up = boundary, 0.0, 0.0, 0.0, 0.0
+                    t, a_up, a_v = _segment(s_up, sig, path)
+                    light = l_up * t + q_up * a_up + qv * a_v
+                    light_sun = ld_up * t + qd_up * a_up + qd * a_v
+                    cur[0, p, q] = light
+                    cur[1, p, q] = qv
+                    cur[2, p, q] = sig
+                    cur[3, p, q] = light_sun
+                    cur[4, p, q] = qd
                 if needed[rx, ry, rz]:
                     f = _toward_eye(w0, w1, w2, weight, to_eye, g_grid, rx, ry, rz)
                     norm[ix, iy, iz] += f
