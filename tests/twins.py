@@ -348,6 +348,21 @@ def _fibonacci_bins(n):
     return _FIBONACCI[n]
 
 
+def nearest_ordinate_bands(mu, ring, e, axes) -> tuple[np.ndarray, np.ndarray]:
+    """(frac, cos) float64 (n_mu, n): kernels.ordinates18.nearest_ordinate_bands by whole
+    arrays: every direction w = mu[b] e + sqrt(1 - mu[b]^2) ring[z] given to the axis with the
+    largest w . axes[n], counted and its cosine summed per band, over n_azimuth."""
+    dirs = mu[:, None, None] * e + np.sqrt(1.0 - mu ** 2)[:, None, None] * ring[None]
+    dots = np.einsum("mzk,nk->mzn", dirs, axes)
+    nearest = np.argmax(dots, axis=2)
+    own = np.take_along_axis(dots, nearest[..., None], axis=2)[..., 0]
+    n_mu, n_azimuth, n = len(mu), len(ring), len(axes)
+    index = (np.arange(n_mu)[:, None] * n + nearest).ravel()
+    frac = np.bincount(index, minlength=n_mu * n).reshape(n_mu, n) / n_azimuth
+    cos = np.bincount(index, own.ravel(), minlength=n_mu * n).reshape(n_mu, n) / n_azimuth
+    return frac, cos
+
+
 def ordinates18_sweep(W, Wa, Th, Sh, Dh, inv_area, phi, F, w_min, forward_d, forward_u, forward_v, tally,
                       upwind=False):
     """One Gauss-Seidel sweep of the eighteen-ordinate walk (twin of

@@ -92,8 +92,9 @@ ORDINATES6 = ORDINATES18[:6]
 GROUPS18 = 2
 #: parts held to a sweep's end by the eighteen-ordinate walks of this process (kernels/ordinates18.py)
 HELD18 = [0]
-#: memory ordinate18_table takes while it is built (its bands of cosine in chunks)
-ORDINATE18_TABLE_BYTES = 40_000_000
+#: memory ordinate18_table takes while it is built (12.7 MB by tracemalloc: the lobe weights of
+#: 255 anisotropies x 2048 bands of cosine, float64, and their temporaries)
+ORDINATE18_TABLE_BYTES = 16_000_000
 
 
 def _signed_permutations() -> list[np.ndarray]:
@@ -126,7 +127,8 @@ def _ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) ->
     n] that share times its mean cosine about e_n (kernels/ordinates18.py). The shares of a lobe sum to 1.
 
     By quadrature over n_mu bands of cosine about the lobe's axis (each weighted by the lobe's
-    exact integral over it) times n_azimuth azimuths, for one face and one edge; the other ordinates follow by the cube's symmetries.
+    exact integral over it) times n_azimuth azimuths (kernels.ordinates18.nearest_ordinate_bands),
+    for one face and one edge; the other ordinates follow by the cube's symmetries.
     a = +-1 (a delta along +-e_o) is all in ordinate o (or its opposite), with mean cosine 1."""
     axes = ORDINATES18 / np.linalg.norm(ORDINATES18, axis=1)[:, None]
     edges = np.linspace(-1.0, 1.0, n_mu + 1)
@@ -148,15 +150,7 @@ def _ordinate18_table(n_a: int = 257, n_mu: int = 2048, n_azimuth: int = 512) ->
         q = np.cross(e, p)
         ring = np.cos(phi)[:, None] * p + np.sin(phi)[:, None] * q          # (n_azimuth, 3)
         frac, cos = np.zeros((n_mu, 18)), np.zeros((n_mu, 18))
-        for b in range(0, n_mu, 128):                  # bands of cosine in chunks: little memory
-            m = mu[b:b + 128]
-            dirs = m[:, None, None] * e + np.sqrt(1.0 - m ** 2)[:, None, None] * ring[None]
-            dots = np.einsum("mzk,nk->mzn", dirs, axes)
-            nearest = np.argmax(dots, axis=2)
-            own = np.take_along_axis(dots, nearest[..., None], axis=2)[..., 0]
-            index = (np.arange(len(m))[:, None] * 18 + nearest).ravel()
-            frac[b:b + 128] = np.bincount(index, minlength=len(m) * 18).reshape(len(m), 18) / n_azimuth
-            cos[b:b + 128] = np.bincount(index, own.ravel(), minlength=len(m) * 18).reshape(len(m), 18) / n_azimuth
+        KO18.nearest_ordinate_bands(mu, ring, e, axes, frac, cos)
         share = np.einsum("am,mn->an", lobe, frac)
         moment = np.einsum("am,mn->an", lobe, cos)
         total = share.sum(axis=1, keepdims=True)

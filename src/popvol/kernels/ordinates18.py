@@ -349,3 +349,38 @@ def pending_blocks(W, Wa, cell, pending, factor, slot, P, M):
                             for o in range(n):
                                 P[b, o] += W[r, o]
                                 M[b, o] += Wa[r, o]
+
+
+@nb.njit(parallel=True, cache=True, nogil=True)
+def nearest_ordinate_bands(mu, ring, e, axes, frac, cos):
+    """The partition of the sphere among ``axes`` (float64 (n, 3) unit vectors, each taking the
+    directions nearer to it than to any other) by bands of cosine about the unit axis e (float64
+    (3,)): for band b the directions w = mu[b] e + sqrt(1 - mu[b]^2) ring[z] (mu float64 (n_mu,),
+    ring float64 (n_azimuth, 3), unit vectors normal to e), each given to the axis n with the
+    largest w . axes[n] (the first on a tie); frac[b, n] (float64 (n_mu, n)) the share of band
+    b's directions given to n, cos[b, n] their sum of w . axes[n] over n_azimuth (walk.
+    ordinate18_table). One band per iteration, its sums in order of z, so the bits do not
+    depend on the threads. NumPy twin: tests/twins.py (nearest_ordinate_bands)."""
+    n_azimuth = ring.shape[0]
+    n = axes.shape[0]
+    for b in nb.prange(mu.shape[0]):
+        m = mu[b]
+        s = math.sqrt(1.0 - m * m)
+        count = np.zeros(n)
+        total = np.zeros(n)
+        for z in range(n_azimuth):
+            w0 = m * e[0] + s * ring[z, 0]
+            w1 = m * e[1] + s * ring[z, 1]
+            w2 = m * e[2] + s * ring[z, 2]
+            best = -math.inf
+            nearest = 0
+            for o in range(n):
+                dot = w0 * axes[o, 0] + w1 * axes[o, 1] + w2 * axes[o, 2]
+                if dot > best:
+                    best = dot
+                    nearest = o
+            count[nearest] += 1.0
+            total[nearest] += best
+        for o in range(n):
+            frac[b, o] = count[o] / n_azimuth
+            cos[b, o] = total[o] / n_azimuth
