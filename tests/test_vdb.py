@@ -10,7 +10,7 @@ import pytest
 
 from conftest import SHARED, shared_file
 from popvol.errors import PopvolError
-from popvol.io.vdb import debian_python
+from popvol.io.vdb import cut_short, debian_python, reader_detail
 from popvol.io.volumes import read_volume
 
 
@@ -155,9 +155,50 @@ def test_unreadable_vdb(tmp_path):
 def test_missing_reader_says_how_to_install(tmp_path, monkeypatch):
     p = tmp_path / "a.vdb"
     p.write_bytes(b"x")
-    monkeypatch.setenv("POPVOL_VDB_PYTHON", str(tmp_path / "no-such-python"))
+    monkeypatch.delenv("POPVOL_VDB_PYTHON", raising=False)
+    monkeypatch.setattr("popvol.io.vdb.debian_python", lambda: None)
     with pytest.raises(PopvolError, match="apt-get install python3-openvdb"):
         read_volume(p)
+
+
+def test_a_reader_that_is_not_there_or_not_one_is_named_by_its_variable(tmp_path, monkeypatch):
+    """POPVOL_VDB_PYTHON set to a program that does not exist, or to one that is not the reader
+    (it prints something else): the message names the variable and says what went wrong."""
+    p = tmp_path / "a.vdb"
+    p.write_bytes(b"x")
+    monkeypatch.setenv("POPVOL_VDB_PYTHON", str(tmp_path / "no-such-python"))
+    with pytest.raises(PopvolError, match=r"POPVOL_VDB_PYTHON=.*no-such-python is not a program that can be run"):
+        read_volume(p)
+    monkeypatch.setenv("POPVOL_VDB_PYTHON", "/bin/echo")
+    with pytest.raises(PopvolError, match=r"reader \(POPVOL_VDB_PYTHON=/bin/echo\) failed: unexpected output"):
+        read_volume(p)
+
+
+@pytest.mark.parametrize("keep", [8, 64, 150, 0.1, 0.5, -1])
+def test_a_truncated_vdb_is_refused_at_once(tmp_path, keep):
+    """A .vdb cut short (a download that stopped) is refused from its own header, in well under a
+    second: its grid's end offset lies past the file's last byte, or the header itself does.
+    OpenVDB took up to a minute and gigabytes of memory to refuse such a file, and its message
+    was gigabytes of padding. The complete file's header is not refused."""
+    src = shared_file("vdb/vpt_dragon_fog.vdb")
+    data = src.read_bytes()
+    n = {0.1: len(data) // 10, 0.5: len(data) // 2, -1: len(data) - 1}.get(keep, keep)
+    p = tmp_path / "cut.vdb"
+    p.write_bytes(data[:n])
+    with pytest.raises(PopvolError, match="it is truncated") as e:
+        read_volume(p)
+    msg = str(e.value)
+    assert str(p) in msg and "\n" not in msg and len(msg) < 300
+    assert cut_short(src) is None
+
+
+def test_a_reader_message_is_one_short_line():
+    """What the OpenVDB reader says is cut to its words at both ends, at most 300 characters (a
+    damaged file once made OpenVDB's message 1.6 GB of padding); an empty one gets a reason."""
+    words = reader_detail("'Map" + " " * 1_000_000 + "\n\t is not registered'")
+    assert words == "'Map ... is not registered'"
+    assert len(reader_detail("x " * 10_000)) <= 300
+    assert "truncated or corrupt" in reader_detail("")
 
 
 def test_nanovdb_is_a_clear_error(tmp_path):
