@@ -514,6 +514,13 @@ def test_reference_does_not_overwrite_the_scenes_files(tmp_path, capsys):
     (["--max-depth", "0"], ["--max-depth", "-1"]),
     (["--max-depth", "-5"], ["--max-depth"]),
     (["--max-depth", "1"], ["--max-depth", "no scattering"]),
+    # every pass takes the same samples per pixel: a remainder is refused, not dropped (it was:
+    # --spp 6 rendered 4 spp in 4 passes and said so only in its summary)
+    (["--spp", "6"], ["--spp = 6 is not a multiple of --passes = 4", "--spp 4 or 8", "--passes 2, 3, 6"]),
+    (["--spp", "3", "--passes", "2"], ["--spp = 3", "--passes = 2", "--spp 2 or 4", "--passes 3"]),
+    (["--spp", "7", "--passes", "2"], ["--spp 6 or 8", "--passes 7"]),
+    # the flag that is wrong, alone
+    (["--spp", "4", "--passes", "0"], ["--passes = 0 must be in [1, 2147483647]"]),
 ])
 def test_reference_options_are_checked_before_mitsuba(tmp_path, capsys, options, words):
     scene = toml_scene(tmp_path, TINY_TOML)

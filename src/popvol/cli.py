@@ -330,7 +330,7 @@ def hg_figure(output):
 @click.argument("scene", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Reference image (.exr).")
 @click.option("--spp", type=int, default=256, show_default=True, help="Samples per pixel to add.")
-@click.option("--passes", type=int, default=4, show_default=True, help="Passes to split them into (>= 2 for a noise estimate).")
+@click.option("--passes", type=int, default=4, show_default=True, help="Passes to split them into (>= 2 for a noise estimate; --spp must be a multiple of it, and more passes than samples are cut to one sample each).")
 @click.option("--variant", type=click.Choice(["scalar_rgb", "llvm_ad_rgb"]), default="scalar_rgb", show_default=True)
 @click.option("--max-depth", type=int, default=1024, show_default=True, help="Longest light path (volpath).")
 @click.option("--width", type=int, help="Image width (overrides the scene).")

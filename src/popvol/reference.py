@@ -439,6 +439,8 @@ def _meta_number(meta: dict, key: str, default, meta_path: Path, kind, minimum, 
 def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb", passes: int = 4,
                      max_depth: int = 1024, resume: bool = True, progress=None) -> Reference:
     """Render ``spp`` more samples per pixel in ``passes`` passes and add them to ``output``.
+    ``spp`` must be a multiple of ``passes`` (each pass renders the same samples per pixel);
+    more passes than samples are cut to one sample each.
 
     With ``resume`` and an existing reference of the same scene (the same
     :func:`path_traced_digest`, or for a reference made before popvol kept it the same
@@ -448,12 +450,19 @@ def render_reference(scene: Scene, output, spp: int, variant: str = "scalar_rgb"
     """
     from .io.images import write_exr
     output = Path(output)
-    if not (1 <= spp <= MAX_SPP and 1 <= passes <= MAX_SPP):
-        raise PopvolError(f"--spp = {spp} and --passes = {passes} must be in [1, {MAX_SPP}]")
+    for flag, value in (("--spp", spp), ("--passes", passes)):
+        if not 1 <= value <= MAX_SPP:
+            raise PopvolError(f"{flag} = {value} must be in [1, {MAX_SPP}]")
+    passes = min(passes, spp)
+    if spp % passes:
+        lower, higher = spp // passes * passes, -(-spp // passes) * passes
+        divisors = [d for d in range(2, min(spp, 64) + 1) if spp % d == 0]
+        instead = f", or --passes {', '.join(map(str, divisors))}" if divisors else ""
+        raise PopvolError(f"--spp = {spp} is not a multiple of --passes = {passes} (every pass takes the same "
+                          f"samples per pixel): use --spp {lower} or {higher}{instead}")
     if max_depth != -1 and not 2 <= max_depth <= MAX_SPP:
         raise PopvolError(f"--max-depth = {max_depth} must be -1 (no limit) or in [2, {MAX_SPP}] "
                           "(a path of length 1 sees no scattering)")
-    passes = min(passes, spp)
     per_pass = spp // passes
     meta_path, sums_path = _sidecars(output)
     digest, traced = scene_digest(scene), path_traced_digest(scene)
