@@ -808,6 +808,27 @@ def test_a_corrupt_hdr_map_is_one_line_without_opencvs_own(tmp_path, capfd):
     assert out == "" and err == "", (out, err)
 
 
+@pytest.mark.parametrize("keep", [0.75, 0.9, 0.97])
+def test_an_exr_cut_short_is_one_line_without_openexrs_own(tmp_path, capfd, keep):
+    """An EXR whose header is whole and whose pixels are cut short (a copy that stopped): one
+    PopvolError line naming the file and saying so, and nothing from OpenEXR on the process's
+    stdout or stderr (its C library and its binding each printed a line of their own before)."""
+    from popvol.io.images import read_exr, write_exr
+    whole = tmp_path / "whole.exr"
+    write_exr(whole, np.random.default_rng(0).random((36, 64, 3)).astype(np.float32))
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.exr"
+    cut.write_bytes(data[:int(len(data) * keep)])
+    capfd.readouterr()
+    with pytest.raises(PopvolError, match="truncated or corrupt") as e:
+        read_exr(cut)
+    one_line(str(e.value))
+    assert str(e.value).startswith(f"{cut}: ")
+    assert capfd.readouterr() == ("", "")
+    assert read_exr(whole).shape == (36, 64, 3)
+    assert capfd.readouterr() == ("", "")
+
+
 def test_an_exr_that_declares_a_huge_image_is_refused_before_its_pixels(tmp_path, capfd):
     """A header forged to declare 100000x50000 pixels: one line from the header alone (the
     binding printed a MemoryError for 56 GiB on stdout before)."""

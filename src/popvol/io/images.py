@@ -17,8 +17,13 @@ Exposure is a number of stops or ``"auto"`` (:func:`auto_exposure`).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
 import math
+import os
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -279,26 +284,78 @@ def exr_size(path) -> tuple[int, int]:
     return width, height
 
 
+def _flush_c_streams() -> None:
+    """fflush(NULL): write out what C's stdio holds for every stream (C++'s std::cout shares
+    C's stdout buffer), before the file descriptors it writes to are swapped back."""
+    import ctypes
+    with contextlib.suppress(Exception):
+        ctypes.CDLL(None).fflush(None)
+
+
+@contextlib.contextmanager
+def library_output(said: list):
+    """Hold what C/C++ code writes to the process's stdout and stderr (file descriptors 1 and 2)
+    inside the block, and append it to ``said`` (one str) after: OpenEXR reports a damaged
+    file's pixels there (its C library on stderr, the Python binding's warning on stdout) before
+    the binding raises. Python's own streams are flushed first, so nothing of theirs is held;
+    what another thread prints during the block is held with it (the block is one file read)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    _flush_c_streams()
+    python = io.StringIO()                 # what the binding prints through Python's streams
+    with tempfile.TemporaryFile() as held:
+        saved = [os.dup(1), os.dup(2)]
+        try:
+            os.dup2(held.fileno(), 1)
+            os.dup2(held.fileno(), 2)
+            with contextlib.redirect_stdout(python), contextlib.redirect_stderr(python):
+                yield
+        finally:
+            _flush_c_streams()             # C's stdout buffers what the library printed
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            held.seek(0)
+            said.append(held.read(1 << 16).decode("utf-8", "replace") + python.getvalue()[:1 << 16])
+
+
 def read_exr(path) -> np.ndarray:
     """float32 (H, W, 3) linear RGB from an EXR with R, G, B channels (its size checked first,
-    :func:`exr_size`)."""
+    :func:`exr_size`). Pixels the library cannot read (a file cut short, a corrupt chunk: it
+    says so on the process's stdout or stderr, :func:`library_output`) are one PopvolError line
+    naming the file, whatever the binding returns."""
     import OpenEXR
     path = Path(path)
     exr_size(path)
+    said = []
     try:
-        with OpenEXR.File(str(path)) as f:
-            ch = f.channels()
-            if "RGB" in ch:
-                rgb = ch["RGB"].pixels
-            elif "RGBA" in ch:              # the binding groups R, G, B and A into one array
-                rgb = ch["RGBA"].pixels[..., :3]
-            else:
-                rgb = np.stack([ch[c].pixels for c in "RGB"], axis=-1)
+        with library_output(said):
+            with OpenEXR.File(str(path)) as f:
+                ch = f.channels()
+                if "RGB" in ch:
+                    rgb = ch["RGB"].pixels
+                elif "RGBA" in ch:              # the binding groups R, G, B and A into one array
+                    rgb = ch["RGBA"].pixels[..., :3]
+                else:
+                    rgb = np.stack([ch[c].pixels for c in "RGB"], axis=-1)
     except KeyError as e:
         raise PopvolError(f"{path}: EXR has no {e} channel; popvol reads R, G, B") from None
     except Exception as e:
-        raise PopvolError(f"{path}: cannot read EXR ({e})") from None
+        raise PopvolError(f"{path}: cannot read EXR ({damage(said, path) or e})") from None
+    if damage(said, path):
+        raise PopvolError(f"{path}: cannot read EXR ({damage(said, path)})")
     return np.asarray(rgb, np.float32)
+
+
+def damage(said: list, path: Path) -> str:
+    """What OpenEXR said of ``path``'s pixels (:func:`library_output`), as a short reason
+    without the file's name (the message has it): empty if it said nothing."""
+    text = " ".join(" ".join(said).replace(f"{path}:", "").replace(str(path), "the file").split())
+    if not text:
+        return ""
+    return f"its pixel data is truncated or corrupt; OpenEXR: {text[:160]}"
 
 
 def image_writer(path, rgb, exposure="auto", tone: str = "aces"):
