@@ -508,6 +508,21 @@ def test_reference_does_not_overwrite_the_scenes_files(tmp_path, capsys):
     cli_refuses(capsys, ["reference", named, "-o", tmp_path / "r.exr"], "r.exr.json", "overwrite")
 
 
+def test_a_domain_too_large_names_the_option_or_the_knob_that_made_it(tmp_path, capsys):
+    """A light domain too large for memory names what set its resolution: ``--resolution``
+    given on the command line (not the scene file, which does not set it), or the scene's
+    method.environment_resolution for a sky's domains (not method.resolution)."""
+    scene = toml_scene(tmp_path, TINY_TOML)
+    line = cli_refuses(capsys, ["render", scene, "-o", tmp_path / "x.png", "--resolution", "4096"],
+                       "--resolution = 4096 (on the command line)", "GiB")
+    assert "s.toml" not in line and "method.resolution" not in line
+    sky = toml_scene(tmp_path, '[medium]\ntype = "procedural"\nresolution = 8\n[[lights]]\ntype = "sky"\n'
+                     '[method]\nenvironment_resolution = 3000\n[camera]\nwidth = 16\nheight = 9\n', name="sky.toml")
+    cli_refuses(capsys, ["render", sky, "-o", tmp_path / "x.png"], "sky.toml: method.environment_resolution = 3000",
+                "GiB")
+    assert not (tmp_path / "x.png").exists()
+
+
 @pytest.mark.parametrize("options, words", [
     (["--spp", "99999999999999999999"], ["--spp", "[1, 2147483647]"]),
     (["--spp", "0"], ["--spp"]),

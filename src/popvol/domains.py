@@ -109,11 +109,13 @@ class DirectionalDomain:
 
 
 def directional_domain(medium: Medium, direction: np.ndarray, resolution: int, block: int = 1,
-                       crop: bool = True) -> DirectionalDomain:
+                       crop: bool = True, field: str | None = None) -> DirectionalDomain:
     """The domain for light travelling along ``direction``: a lattice of cubic cells with
     ``resolution`` cells along the longest side of the medium's box in the light's frame (the
     other sides rounded up to whole cells), cropped to the medium (:func:`crop_to_medium`, the
-    crop aligned to ``block`` cells) unless ``crop`` is False."""
+    crop aligned to ``block`` cells) unless ``crop`` is False. ``field``: how a message about its
+    memory names the resolution (default: the medium's source and ``method.resolution``;
+    popvol.method.knob_field)."""
     frame = light_frame(direction)
     lo, hi = medium.bounds
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
@@ -128,7 +130,7 @@ def directional_domain(medium: Medium, direction: np.ndarray, resolution: int, b
     dom = DirectionalDomain(frame, origin, h, shape, block)
     if crop:
         dom = crop_to_medium(dom, medium)
-    check_memory(dom.n_cells * BYTES_PER_DOMAIN_CELL, f"{medium.source}: method.resolution = {resolution}",
+    check_memory(dom.n_cells * BYTES_PER_DOMAIN_CELL, field or f"{medium.source}: method.resolution = {resolution}",
                  f"a light domain of {dom.shape[0]}x{dom.shape[1]}x{dom.shape[2]} cells")
     return dom
 

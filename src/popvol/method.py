@@ -13,6 +13,7 @@ arguments of ``load_scene``. The command line does not offer them.
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field, make_dataclass
 
 from . import check
@@ -264,6 +265,32 @@ def _method_doc() -> str:
 Method = make_dataclass(
     "Method", [(k.name, k.type, field(default=k.default)) for k in KNOBS], bases=(_MethodBase,),
     namespace={"__module__": __name__, "__doc__": _method_doc()})
+
+
+#: id(method) -> the names of its knobs that the command line set (:func:`mark_overridden`); kept
+#: apart from the Method, whose vars() are its knobs (its key, its digest, the stats' JSON)
+_OVERRIDDEN: dict[int, frozenset] = {}
+
+
+def mark_overridden(method, names) -> None:
+    """Remember that the command line set knobs ``names`` of ``method`` (for :func:`knob_field`),
+    for as long as that Method object lives."""
+    key = id(method)
+    if key not in _OVERRIDDEN:
+        weakref.finalize(method, _OVERRIDDEN.pop, key, None)
+    _OVERRIDDEN[key] = _OVERRIDDEN.get(key, frozenset()) | frozenset(names)
+
+
+def knob_field(method, name: str, source: str) -> str:
+    """How a message names knob ``name`` of ``method`` and its value: ``--resolution = 4096 (on
+    the command line)`` where the command line set it (:func:`mark_overridden`, by
+    popvol.scene.apply_overrides), else ``SOURCE: method.resolution = 4096`` (``experimental.``
+    for an experimental knob)."""
+    k = KNOB[name]
+    value = getattr(method, name)
+    if name in _OVERRIDDEN.get(id(method), ()):
+        return f"{k.option} = {value} (on the command line)"
+    return f"{source}: {k.table}.{name} = {value}"
 
 
 def method_from_tables(method_table, experimental_table, src: str) -> "Method":

@@ -20,7 +20,7 @@ from .camera import Camera
 from .errors import PopvolError
 from .lights import LIGHTS, Light
 from .medium import Medium, check_box
-from .method import KNOB, Method, method_from_tables
+from .method import KNOB, Method, mark_overridden, method_from_tables
 
 __all__ = ["Scene", "Method", "load_scene", "apply_overrides", "scene_from_dict", "auto_camera",
            "DEMO_SCENE"]
@@ -116,6 +116,7 @@ def apply_overrides(scene: Scene, **overrides) -> Scene:
                               source=c.source + " (override)")     # --width 0 is not the scene's
     for k, v in meth_fields.items():
         setattr(scene.method, k, v)
+    mark_overridden(scene.method, meth_fields)     # for messages that name a knob (method.knob_field)
     scene.method.validate(scene.source + " (override)")
     return scene
 

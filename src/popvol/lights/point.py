@@ -32,6 +32,7 @@ from ..errors import PopvolError
 from ..kernels import propagation as KP
 from ..kernels import spherical as KS
 from ..medium import Medium
+from ..method import knob_field
 from ..results import Budget, WalkResult
 from ..walk import (default_max_iterations, direction_split, fibonacci_directions, handover_arrays,
                     medium_factors, never_skipped, scatter_factor, split_table32, sweep_until_converged, walk_box)
@@ -87,11 +88,12 @@ class PointLight(Light):
         sun's domain, toward the medium (along the cone's axis) where the light is outside the
         medium's box, so that its light crosses the lattice as nearly along an ordinate as a
         cone allows; along the world's axes (BOX_AXIS) where the domain is the whole sphere."""
-        sphere = spherical_domain(medium, self.position, method.resolution)
+        field = knob_field(method, "resolution", medium.source)
+        sphere = spherical_domain(medium, self.position, method.resolution, field)
         walk = method.point_walk
         if method.solver == "ordinates" and (walk == "ordinates" or (walk == "auto" and not sphere.full)):
             axis = BOX_AXIS if sphere.full else sphere.frame[0]
-            sphere.grid = directional_domain(medium, axis, method.resolution)
+            sphere.grid = directional_domain(medium, axis, method.resolution, field=field)
         return sphere
 
     def table(self) -> dict:
@@ -513,11 +515,13 @@ def check_point_distance(medium: Medium, position: np.ndarray, field: str) -> No
                           "its light arrives as parallel as a sun's: use a directional light")
 
 
-def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> SphericalDomain:
+def spherical_domain(medium: Medium, position: np.ndarray, resolution: int, field: str | None = None
+                     ) -> SphericalDomain:
     """The domain of a point light at ``position``: shells from the medium's box's nearest to
     its farthest point, ``resolution`` cells along the longest of the radial extent and the
     angular extents at the middle radius (for a full sphere, the half circumference), cells
-    of about equal size in the three directions at the middle radius."""
+    of about equal size in the three directions at the middle radius. ``field``: how a message
+    about its memory names the resolution (popvol.method.knob_field)."""
     p = np.asarray(position, np.float64)
     lo, hi = medium.bounds
     box = np.array([lo, hi], np.float64)
@@ -550,7 +554,7 @@ def spherical_domain(medium: Medium, position: np.ndarray, resolution: int) -> S
         shape = (max(1, int(np.ceil((r_hi - r_lo) / h - 1e-9))), n_a, n_a)
         dom = SphericalDomain(p, frame, r_lo, (r_hi - r_lo) / shape[0], np.pi / 2 - alpha,
                               2 * alpha / n_a, -alpha, 2 * alpha / n_a, shape, False, box)
-    check_memory(dom.n_cells * BYTES_PER_SPHERICAL_CELL, f"{medium.source}: method.resolution = {resolution}",
+    check_memory(dom.n_cells * BYTES_PER_SPHERICAL_CELL, field or f"{medium.source}: method.resolution = {resolution}",
                  f"a point light's domain of {shape[0]}x{shape[1]}x{shape[2]} cells")
     return dom
 

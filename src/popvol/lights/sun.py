@@ -15,6 +15,7 @@ import numpy as np
 
 from .. import check
 from ..domains import DirectionalDomain, directional_domain, resample_medium
+from ..method import knob_field
 from ..errors import PopvolError
 from ..kernels.sampling import domain_to_world
 from ..walk import (default_max_iterations, direct_fluence, handover_factor, medium_factors, scatter_factor,
@@ -79,10 +80,10 @@ class DirectionalLight(Light):
         return ("directional", tuple(np.round(self.direction, 12)), self.a0, self.from_environment)
 
     def domain(self, medium, method) -> "SunDomain":
-        resolution = method.resolution
-        if self.from_environment and method.environment_resolution:
-            resolution = method.environment_resolution
-        grid = directional_domain(medium, self.direction, resolution, diffusion_factor(resolution, method))
+        knob = "environment_resolution" if self.from_environment and method.environment_resolution else "resolution"
+        resolution = getattr(method, knob)
+        grid = directional_domain(medium, self.direction, resolution, diffusion_factor(resolution, method),
+                                  field=knob_field(method, knob, medium.source))
         return SunDomain(grid.frame, grid.origin, grid.h, grid.shape, grid.block, self.a0)
 
     def table(self) -> dict:
