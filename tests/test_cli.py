@@ -151,12 +151,18 @@ SMALL = "[camera]\nwidth = 16\nheight = 9\n[method]\nresolution = 8\n"
      "no camera ray crosses the medium"),
     (TINY + "scale = 0\n" + LIGHT + "[background]\nradiance = 0.5\n" + SMALL, "no camera ray crosses the medium"),
     (TINY + "scale = 1e-300\n" + LIGHT + SMALL, "no camera ray crosses the medium"),
-    (TINY + LIGHT + "irradiance = 0\n" + SMALL, "the image is black"),
+    (TINY + LIGHT + "irradiance = 0\n" + SMALL, "the image is black (every pixel 0): no light reaches the camera "
+     "from the medium; no light has power"),
+    (TINY + "albedo = 0\n" + LIGHT + SMALL, ("the image is black (every pixel 0): no light reaches the camera from "
+     "the medium; ", "s.toml: medium.albedo = 0, so the medium absorbs all light")),
+    (TINY + LIGHT + SMALL.replace("[method]\n", "[method]\nexposure = -64\n"), "o.png is black at exposure -64 "
+     "stops, though the image is not (exposure 'auto' gives"),
     (TINY + LIGHT + SMALL, None),
-], ids=["camera looks away", "scale 0", "scale 1e-300", "irradiance 0", "a cloud"])
+], ids=["camera looks away", "scale 0", "scale 1e-300", "irradiance 0", "albedo 0", "exposure -64", "a cloud"])
 def test_render_warns_when_the_image_shows_no_medium_or_is_black(tmp_path, scene, warning):
     """Such an image is a legitimate render: written, exit status 0, and one warning line on
-    stderr saying why it shows nothing (none for an image of the cloud)."""
+    stderr saying why it shows nothing, with the likeliest cause (none for an image of the
+    cloud); a PNG that its fixed exposure makes black, though the image is not, is one too."""
     path = write_scene(tmp_path, scene)
     out, exr = tmp_path / "o.png", tmp_path / "o.exr"
     r = popvol("render", str(path), "-o", str(out), "--exr", str(exr))
@@ -167,9 +173,14 @@ def test_render_warns_when_the_image_shows_no_medium_or_is_black(tmp_path, scene
     if warning is None:
         assert lines == [] and img.max() > 0
         return
+    warning, *more = (warning,) if isinstance(warning, str) else warning
     assert len(lines) == 1 and lines[0].startswith("popvol: warning: ") and warning in lines[0], r.stderr
+    assert all(w in lines[0] for w in more), lines[0]
     assert out.stat().st_size > 0 and "Traceback" not in r.stderr
-    if "black" in warning:
+    if "exposure -64" in warning:
+        from PIL import Image
+        assert img.max() > 0 and not np.asarray(Image.open(out)).any()
+    elif "black" in warning:
         assert not img.any()
     else:                                        # the background alone, where the scene has one
         assert np.all(img == img[0, 0]) and ("which is black" in lines[0]) == (not img.any())

@@ -508,6 +508,22 @@ def test_reference_does_not_overwrite_the_scenes_files(tmp_path, capsys):
     cli_refuses(capsys, ["reference", named, "-o", tmp_path / "r.exr"], "r.exr.json", "overwrite")
 
 
+def test_a_black_environment_map_says_so_in_the_summary(tmp_path, capsys):
+    """An environment map of zeros gives no light to propagate: the render is written, black,
+    with the black image's warning naming that cause, and its summary line says there was no
+    light to propagate (it read "[,  iterations]")."""
+    from popvol.io.images import write_exr
+    write_exr(tmp_path / "zeros.exr", np.zeros((8, 16, 3), np.float32))
+    scene = toml_scene(tmp_path, '[medium]\ntype = "procedural"\nresolution = 8\n[[lights]]\ntype = "envmap"\n'
+                       'file = "zeros.exr"\nlights = 2\n[camera]\nwidth = 16\nheight = 9\n[method]\nresolution = 8\n')
+    with pytest.raises(SystemExit) as e:
+        main(["render", str(scene), "-o", str(tmp_path / "x.png")])
+    out, err = capsys.readouterr()
+    assert e.value.code in (0, None)
+    assert "[no light with power to propagate]" in out, out
+    assert "no light has power" in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_a_domain_too_large_names_the_option_or_the_knob_that_made_it(tmp_path, capsys):
     """A light domain too large for memory names what set its resolution: ``--resolution``
     given on the command line (not the scene file, which does not set it), or the scene's

@@ -161,7 +161,13 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
                    err=True)
     elif black:
         click.echo("popvol: warning: the image is black (every pixel 0): no light reaches the camera from the "
-                   "medium; are the lights' irradiance or intensity 0?", err=True)
+                   f"medium; {_why_black(sc, info)}", err=True)
+    elif Path(output).suffix.lower() == ".png" and sc.method.exposure != "auto":
+        from .io.images import auto_exposure, tonemap
+        if not tonemap(img, sc.method.exposure, sc.method.tone).any():
+            click.echo(f"popvol: warning: {output} is black at exposure {sc.method.exposure:g} stops, though the "
+                       f"image is not (exposure 'auto' gives {auto_exposure(img, tone=sc.method.tone):+.1f})"
+                       + (f"; {exr} holds the linear values" if exr else ""), err=True)
     for d in info["domains"]:
         if not d["converged"]:
             click.echo(f"popvol: warning: light {d['light']} stopped after {d['iterations']} iterations "
@@ -179,11 +185,22 @@ def render(scene, output, exr, width, height, stats, frames, video, workers, sch
             raise PopvolError(f"--stats {stats}: cannot write ({e.strerror or e})") from None
     its = ", ".join(str(d["iterations"]) for d in info["domains"])
     solvers = "/".join(sorted({d["solver"] for d in info["domains"]}))
+    walked = f"{solvers}, {its} iterations" if info["domains"] else "no light with power to propagate"
     click.echo(f"{output}: {sc.camera.width}x{sc.camera.height} in {seconds['total']:.2f} s "
                f"(load {t_load:.2f}, resample {seconds['resample']:.2f}, propagate {seconds['propagate']:.2f} "
-               f"[{solvers}, {its} iterations]"
+               f"[{walked}]"
                + (f", diffusion {seconds['diffusion']:.2f}" if sc.method.isotropic == "diffusion" else "")
                + f", render {t_render:.2f})")
+
+
+def _why_black(sc, info) -> str:
+    """The likeliest reason a render with the medium in view is black, for its warning."""
+    import numpy as np
+    if not info["domains"] or not any(np.any(np.asarray(light.power) > 0) for light in sc.lights):
+        return "no light has power (every light's irradiance, intensity or radiance is 0)"
+    if not np.any(np.asarray(sc.medium.albedo) > 0):
+        return f"{sc.medium.source}: medium.albedo = 0, so the medium absorbs all light and scatters none"
+    return "are the lights' irradiance or intensity 0, or do they miss the medium?"
 
 
 def _render_frames(seq, scene, output, exr, width, height, stats, frames, video, workers, scheduler, warm_start,
