@@ -508,6 +508,22 @@ def test_reference_does_not_overwrite_the_scenes_files(tmp_path, capsys):
     cli_refuses(capsys, ["reference", named, "-o", tmp_path / "r.exr"], "r.exr.json", "overwrite")
 
 
+def test_paths_that_cannot_be_opened_say_why(tmp_path, capsys):
+    """A folder on an output's way that is a file, a loop of symbolic links, a link to nothing and
+    a scene inside a "folder" that is a file: one line each that says which, not "does not exist"
+    or "not found"."""
+    scene = toml_scene(tmp_path, TINY_TOML)
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "s.toml" / "x.png"],
+                f"folder {tmp_path / 's.toml'} is a file, not a folder")
+    (tmp_path / "loop1.npz").symlink_to("loop2.npz")
+    (tmp_path / "loop2.npz").symlink_to("loop1.npz")
+    refused(file_scene(tmp_path / "loop1.npz"), "loop1.npz is a loop of symbolic links")
+    (tmp_path / "dangling.npz").symlink_to(tmp_path / "gone.npz")
+    refused(file_scene(tmp_path / "dangling.npz"), "is a symbolic link to", "gone.npz, which does not exist")
+    cli_refuses(capsys, ["render", tmp_path / "s.toml" / "inner.toml", "-o", tmp_path / "x.png"],
+                "s.toml is a file, not a folder")
+
+
 def test_a_black_environment_map_says_so_in_the_summary(tmp_path, capsys):
     """An environment map of zeros gives no light to propagate: the render is written, black,
     with the black image's warning naming that cause, and its summary line says there was no

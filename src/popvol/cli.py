@@ -525,9 +525,10 @@ def _method_label(method) -> str:
 
 
 def _check_writable(path: str, option: str) -> None:
+    from .io.files import folder_problem
     parent = Path(path).resolve().parent
-    if not parent.is_dir():
-        raise PopvolError(f"{option} {path}: folder {parent} does not exist")
+    if folder_problem(parent):
+        raise PopvolError(f"{option} {path}: folder {parent} {folder_problem(parent)}")
     if Path(path).is_dir():
         raise PopvolError(f"{option} {path}: is a folder, not a file")
     from .io.files import check_writable_folder

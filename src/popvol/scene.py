@@ -18,6 +18,7 @@ import numpy as np
 from . import check
 from .camera import Camera
 from .errors import PopvolError
+from .io.files import why_missing
 from .lights import LIGHTS, Light
 from .medium import Medium, check_box
 from .method import KNOB, Method, mark_overridden, method_from_tables
@@ -68,7 +69,7 @@ def read_scene_file(path) -> dict:
     naming it."""
     p = Path(path)
     if not p.is_file():
-        raise PopvolError(f"{p}: scene file not found" if not p.exists() else f"{p}: not a file")
+        raise PopvolError(f"{p}: scene file {why_missing(p)}" if not p.exists() else f"{p}: not a file")
     try:
         size = p.stat().st_size
         if size > MAX_SCENE_FILE_BYTES:

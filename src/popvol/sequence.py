@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from . import check
-from .io.files import check_writable_folder
+from .io.files import check_writable_folder, folder_problem
 from .errors import PopvolError
 from .procedural import MOVING_STYLES
 
@@ -636,8 +636,8 @@ def check_patterns(output, exr, frames, src: str = "render") -> None:
                               "file name for the frame number (e.g. out/frame_####.png), or render one frame "
                               "(--frames N)")
         folder = Path(pat).resolve().parent
-        if not folder.is_dir():
-            raise PopvolError(f"{opt} {pat}: folder {folder} does not exist")
+        if folder_problem(folder):
+            raise PopvolError(f"{opt} {pat}: folder {folder} {folder_problem(folder)}")
         check_writable_folder(folder, f"{opt} {pat}")
     if exr is not None and Path(str(exr)).resolve() == Path(str(output)).resolve():
         raise PopvolError(f"--exr {exr} is also -o/--output; give them different names")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
 from pathlib import Path
@@ -56,3 +57,34 @@ def check_writable_folder(folder, what: str) -> None:
             pass
     except OSError as e:
         raise PopvolError(f"{what}: cannot write in folder {folder} ({e.strerror or e})") from None
+
+
+def why_missing(path) -> str:
+    """Why ``path`` cannot be opened, in a message's words: "is a loop of symbolic links", "is a
+    symbolic link to TARGET, which does not exist", "FOLDER is a file, not a folder" (a folder
+    on its way is a file), else "not found"."""
+    path = Path(path)
+    try:
+        os.stat(path)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return "is a loop of symbolic links"
+        if e.errno == errno.ENOTDIR:
+            for parent in reversed(path.parents):
+                if parent.exists() and not parent.is_dir():
+                    return f"{parent} is a file, not a folder"
+        if path.is_symlink():
+            return f"is a symbolic link to {os.readlink(path)}, which does not exist"
+    return "not found"
+
+
+def folder_problem(folder) -> str:
+    """Why ``folder`` cannot hold an output, in a message's words ("does not exist", "is a file,
+    not a folder", ...: :func:`why_missing`), or "" where it is a folder."""
+    folder = Path(folder)
+    if folder.is_dir():
+        return ""
+    if folder.exists():
+        return "is a file, not a folder"
+    why = why_missing(folder)
+    return "does not exist" if why == "not found" else why

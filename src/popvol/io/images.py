@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PopvolError
-from .files import write_atomically_together
+from .files import folder_problem, why_missing, write_atomically_together
 
 SUFFIXES = (".png", ".exr")
 
@@ -205,8 +205,8 @@ def _check(path: Path, rgb) -> np.ndarray:
         raise PopvolError(f"{path}: image must be (height, width, 3), got {rgb.shape}")
     if not np.all(np.isfinite(rgb)) or rgb.min() < 0:
         raise PopvolError(f"{path}: image has non-finite or negative pixels; this is a popvol bug, please report it")
-    if not path.parent.is_dir():
-        raise PopvolError(f"{path}: folder {path.parent} does not exist")
+    if folder_problem(path.parent):
+        raise PopvolError(f"{path}: folder {path.parent} {folder_problem(path.parent)}")
     return rgb
 
 
@@ -271,7 +271,7 @@ def exr_size(path) -> tuple[int, int]:
     import OpenEXR
     path = Path(path)
     if not path.is_file():
-        raise PopvolError(f"{path}: EXR file not found" if not path.exists() else f"{path}: not a file")
+        raise PopvolError(f"{path}: EXR file {why_missing(path)}" if not path.exists() else f"{path}: not a file")
     try:
         with OpenEXR.File(str(path), header_only=True) as f:       # its size before its pixels
             (x0, y0), (x1, y1) = (np.asarray(v, np.int64) for v in f.header()["dataWindow"])

@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import check
 from ..errors import PopvolError
+from .files import why_missing
 
 SUFFIXES = (".npz", ".vol", ".vdb")
 VOL_HEADER_BYTES = 48
@@ -224,7 +225,7 @@ def read_volume(path, grid: str | None = None, signed: bool = False, field: str 
     path = Path(path)
     where = f"{field}: " if field else ""
     if not path.exists():
-        raise PopvolError(f"{where}volume file {path} not found")
+        raise PopvolError(f"{where}volume file {path} {why_missing(path)}")
     if not path.is_file():
         raise PopvolError(f"{where}{path} is {'a folder' if path.is_dir() else 'not a file'}; it must name a volume "
                           f"file ({', '.join(SUFFIXES)})")
