@@ -508,6 +508,35 @@ def test_reference_does_not_overwrite_the_scenes_files(tmp_path, capsys):
     cli_refuses(capsys, ["reference", named, "-o", tmp_path / "r.exr"], "r.exr.json", "overwrite")
 
 
+def test_a_keyframe_that_spoils_a_later_frame_is_refused_before_the_first(tmp_path, capsys):
+    """Keyframes whose interpolation makes frame 3's camera invalid (its up vector parallel to
+    the view): refused, naming frame 3, before frames 1 and 2 are rendered and written (they
+    were, and then the run stopped)."""
+    scene = toml_scene(tmp_path, TINY_TOML + '[[keyframes]]\nframe = 1\ncamera.origin = [0, 0, 5]\n'
+                       '[[keyframes]]\nframe = 3\ncamera.origin = [0, 10, 0]\ncamera.target = [0, 0, 0]\n')
+    (tmp_path / "out").mkdir()
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "out" / "f_##.png"], "s.toml: frame 3: camera.up is "
+                "parallel to the view direction")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_a_million_frames_are_checked_in_seconds(tmp_path):
+    """Before rendering, the outputs of every frame are checked against the scene's files and
+    each other; for 2^20 frames that took minutes (and the run said nothing), now seconds."""
+    import time
+    from popvol import sequence as sq
+    scene = toml_scene(tmp_path, TINY_TOML)
+    seq = sq.load_sequence(scene)
+    frames = list(range(1 << 20))
+    t = time.perf_counter()
+    sq.check_frame_outputs(seq, scene, str(tmp_path / "f_#######.png"), str(tmp_path / "f_#######.exr"), frames)
+    assert time.perf_counter() - t < 30
+    with pytest.raises(PopvolError, match=r"--exr .*c_10.exr \(frame 10\) is also -o/--output of frame 0; give every frame"):
+        sq.check_frame_outputs(seq, scene, str(tmp_path / "c_1#.exr"), str(tmp_path / "c_#.exr"), [0, 10])
+    with pytest.raises(PopvolError, match=r"-o/--output .*s.toml \(frame 0\) is the scene file"):
+        sq.check_frame_outputs(seq, scene, str(scene), None, [0])
+
+
 def test_paths_that_cannot_be_opened_say_why(tmp_path, capsys):
     """A folder on an output's way that is a file, a loop of symbolic links, a link to nothing and
     a scene inside a "folder" that is a file: one line each that says which, not "does not exist"

@@ -141,6 +141,25 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
     if hidden:                                 # clipped: the frame's box, without the medium
         medium = dataclasses.replace(medium, density=np.zeros_like(medium.density))
 
+    lights, environment = _lights(data, medium, source, base_dir)
+
+    bg = check.table(data.get("background", {}), "background", source)
+    check.known_keys(bg, _BACKGROUND_KEYS, "background.", source)
+    check.choice(bg.get("type", "constant"), "background.type", source, ("constant",))
+    if environment is not None and "radiance" in bg:
+        raise PopvolError(f"{source}: background.radiance is given, but the background of a scene with "
+                          "an environment light is the environment map itself; remove it")
+    background = check.power(bg.get("radiance", 0.0), "background.radiance", source)
+
+    method = method_from_tables(data.get("method", {}), data.get("experimental", {}), source)
+    camera = _camera(data.get("camera"), medium, source)
+    files = tuple(_files(data, Path(base_dir)))
+    return Scene(medium, lights, camera, background, method, source, environment, files, frame, hidden)
+
+
+def _lights(data: dict, medium: Medium, source: str, base_dir) -> tuple[list[Light], object]:
+    """The scene's lights (an environment decomposed into its lights) and its environment (or
+    None), from its ``[[lights]]`` tables, each checked against ``medium``."""
     if "lights" in data and "light" in data:
         raise PopvolError(f"{source}: both [light] and [[lights]] are given; put every light in [[lights]]")
     raw_lights = data.get("lights", data.get("light", []))
@@ -158,19 +177,15 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
         for light in got if isinstance(got, list) else [got]:
             light.check(medium)
             lights.append(light)
+    return lights, environment
 
-    bg = check.table(data.get("background", {}), "background", source)
-    check.known_keys(bg, _BACKGROUND_KEYS, "background.", source)
-    check.choice(bg.get("type", "constant"), "background.type", source, ("constant",))
-    if environment is not None and "radiance" in bg:
-        raise PopvolError(f"{source}: background.radiance is given, but the background of a scene with "
-                          "an environment light is the environment map itself; remove it")
-    background = check.power(bg.get("radiance", 0.0), "background.radiance", source)
 
-    method = method_from_tables(data.get("method", {}), data.get("experimental", {}), source)
-    camera = _camera(data.get("camera"), medium, source)
-    files = tuple(_files(data, Path(base_dir)))
-    return Scene(medium, lights, camera, background, method, source, environment, files, frame, hidden)
+def check_camera_and_lights(data: dict, medium: Medium, source: str, base_dir=".") -> None:
+    """Refuse, as :func:`scene_from_dict` would, the camera or lights of the plain scene data
+    ``data`` (a frame's, popvol.sequence), beside ``medium`` (another frame's will do: only the
+    camera's defaults and a point light's distance read it), without building the medium."""
+    _lights(data, medium, source, base_dir)
+    _camera(data.get("camera"), medium, source)
 
 
 def _is_file_sequence(m) -> bool:

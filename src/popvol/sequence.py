@@ -29,6 +29,7 @@ import hashlib
 import inspect
 import json
 import math
+import os
 import re
 import time
 from dataclasses import dataclass, field
@@ -299,6 +300,23 @@ class Sequence:
                 check_volume_header(q, array if isinstance(array, str) else None)
             except PopvolError as e:
                 raise PopvolError(f"{self.source}: frame {f}: {e}") from None
+
+    def check_keyframes(self, frames, medium) -> None:
+        """Refuse, naming its frame, the first of ``frames`` whose keyframed camera or lights are
+        not a valid scene (e.g. an up vector that the interpolation makes parallel to the view),
+        before any frame is rendered: each frame's camera and lights built as the loader builds
+        them (popvol.scene.check_camera_and_lights), beside ``medium`` (the first frame's)."""
+        if not self.keyframes:
+            return
+        from .scene import check_camera_and_lights
+        for f in frames:
+            try:
+                check_camera_and_lights(self.frame_data(f)[0], medium, self.source, self.base_dir)
+            except PopvolError as e:
+                msg, head = str(e), f"{self.source}: "
+                if f"frame {f}" not in msg:
+                    msg = (head + f"frame {f}: " + msg[len(head):]) if msg.startswith(head) else f"frame {f}: {msg}"
+                raise PopvolError(msg) from None
 
     def frame_data(self, frame: int) -> tuple[dict, bool]:
         """(the plain scene data of ``frame``, whether its medium is hidden by ``clip``)."""
@@ -650,20 +668,32 @@ def check_frame_outputs(seq: Sequence, scene_path, output, exr, frames) -> None:
     of frame 10)."""
     from .scene import _files
     inputs = {Path(scene_path).resolve(): "the scene file"} if scene_path else {}
-    for f in frames:
+    # a frame's files differ from the first frame's only through medium.file's run of #
+    for f in frames if seq.pattern is not None else frames[:1]:
         for p in _files(seq.frame_data(f)[0], Path(seq.base_dir)):
             inputs.setdefault(p, f"an input file of frame {f}")
-    written: dict[Path, str] = {}
+    inputs = {str(p): what for p, what in inputs.items()}
+    written: dict[str, str] = {}
+    # by strings, the folder resolved once: a million frames are checked in seconds
+    outputs = []
+    for opt, pat in (("-o/--output", output), ("--exr", exr)):
+        if pat is not None:
+            path = Path(str(pat))
+            m = _HASH_RUN.search(path.name) if has_pattern(pat) else None
+            head, width, tail = (path.name[:m.start()], m.end() - m.start(), path.name[m.end():]) if m else \
+                (path.name, 0, "")
+            outputs.append((opt, str(path.parent.resolve()) + os.sep, head, width, tail, m is not None))
     for f in frames:
-        image, exr_path = _frame_paths(output, exr, f)
-        for opt, path in (("-o/--output", image), ("--exr", exr_path)):
-            if path is None:
-                continue
-            p = path.resolve()
-            if p in inputs:
-                raise PopvolError(f"{opt} {path} (frame {f}) is {inputs[p]}; writing it would overwrite it")
-            if p in written:
-                raise PopvolError(f"{opt} {path} (frame {f}) is also {written[p]}; give every frame its own "
+        for opt, folder, head, width, tail, numbered in outputs:
+            p = folder + (head + str(int(f)).zfill(width) + tail if numbered else head)
+            if os.path.islink(p):           # an output that links to an input overwrites it
+                p = str(Path(p).resolve())
+            if p in inputs or p in written:
+                shown = frame_path(output if opt == "-o/--output" else exr, f) if numbered else \
+                    (output if opt == "-o/--output" else exr)
+                if p in inputs:
+                    raise PopvolError(f"{opt} {shown} (frame {f}) is {inputs[p]}; writing it would overwrite it")
+                raise PopvolError(f"{opt} {shown} (frame {f}) is also {written[p]}; give every frame its own "
                                   "file (a run of # for the whole frame number)")
             written[p] = f"{opt} of frame {f}"
 
@@ -841,6 +871,7 @@ def render_sequence(scene, frames=None, output: str = "frame_####.png", *, clien
                "width": width, "height": height, "method": {k: v for k, v in overrides.items() if v is not None}}
     ov = _overrides(options, "render_sequence")
     probe = seq.scene(frames[0], **ov)                 # checks the overrides and the first frame
+    seq.check_keyframes(frames, probe.medium)          # and every frame's camera and lights
     mid, first = None, None
     if Path(str(output)).suffix.lower() == ".png" and probe.method.exposure == "auto":
         stops, mid, first = _meter(seq, frames, str(output), options["exr"], ov)
