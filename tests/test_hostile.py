@@ -508,6 +508,75 @@ def test_reference_does_not_overwrite_the_scenes_files(tmp_path, capsys):
     cli_refuses(capsys, ["reference", named, "-o", tmp_path / "r.exr"], "r.exr.json", "overwrite")
 
 
+def _changed(change):
+    scene = scene_from_dict(TINY, "s.toml")
+    change(scene)
+    return scene
+
+
+@pytest.mark.parametrize("change, words", [
+    # each of the first three crashed the process (SIGSEGV) in solve
+    (lambda s: setattr(s.method, "resolution", 0), ["s.toml: method.resolution = 0", "[2, 4096]"]),
+    (lambda s: setattr(s.method, "step", float("nan")), ["s.toml: method.step = nan"]),
+    (lambda s: setattr(s.lights[0], "direction", np.zeros(3)), ["lights[0].direction", "not all 0"]),
+    # these gave wrong or black images
+    (lambda s: setattr(s.method, "resolution", -5), ["method.resolution = -5"]),
+    (lambda s: setattr(s.method, "tolerance", float("nan")), ["method.tolerance = nan"]),
+    (lambda s: setattr(s.camera, "fov", float("nan")), ["camera.fov = nan"]),
+    (lambda s: setattr(s, "lights", []), ["scene.lights must be a non-empty list"]),
+    (lambda s: setattr(s.lights[0], "irradiance", np.array([-1.0, 1, 1])), ["lights[0].irradiance"]),
+    (lambda s: s.medium.density.__imul__(-1), ["density has negative values"]),
+    # these raised TypeErrors and Numba's errors from deep inside
+    (lambda s: setattr(s.method, "resolution", "64"), ["method.resolution = '64'"]),
+    (lambda s: setattr(s.camera, "width", -5), ["camera.width = -5"]),
+    (lambda s: setattr(s, "lights", None), ["scene.lights must be"]),
+    (lambda s: setattr(s, "camera", None), ["scene.camera must be a popvol Camera"]),
+])
+def test_a_scene_changed_after_loading_is_checked_again(change, words):
+    """solve and render check the Scene they are given as the loader does (popvol.scene.
+    checked_scene), so a field changed after loading, or a scene built by hand, gets the
+    loader's one-line error naming it."""
+    for call in (popvol.solve, popvol.render):
+        with pytest.raises(PopvolError) as e:
+            call(_changed(change))
+        msg = one_line(str(e.value))
+        for w in words:
+            assert w in msg, msg
+
+
+def test_a_scene_changed_into_valid_values_renders_as_if_loaded_so():
+    """A camera origin set as a list and a medium scale set as one number are normalised as the
+    loader would (they raised Numba's and TypeErrors): the same image as the scene loaded so."""
+    want = popvol.render(scene_from_dict(TINY, "s.toml"))
+    got = popvol.render(_changed(lambda s: (setattr(s.camera, "origin", list(s.camera.origin)),
+                                            setattr(s.medium, "scale", float(s.medium.scale[0])))))
+    np.testing.assert_array_equal(got, want)
+
+
+def test_a_solution_of_another_scene_is_refused():
+    """render(scene, solution) refuses a solution solved for another medium (another seed of the
+    same size, other optics) or other lights (another count, kind or direction), which it drew
+    silently wrong; the camera and the lights' power may change."""
+    scene = scene_from_dict(TINY, "s.toml")
+    solution = popvol.solve(scene)
+    moved = with_(["camera"], {"width": 16, "height": 9, "origin": [0.0, 0.5, 3.0], "target": [0.0, 0.3, 0.0]})
+    brighter = with_(["lights"], [{"type": "directional", "direction": [0.0, -1.0, 0.0], "irradiance": 5.0}])
+    for ok in (moved, brighter):
+        assert np.isfinite(popvol.render(scene_from_dict(ok, "s.toml"), solution)).all()
+    for other, word in ((with_(["medium", "seed"], 3), "another medium"),
+                        (with_(["medium", "albedo"], 0.3), "another medium"),
+                        (with_(["lights"], [{"type": "directional", "direction": [0.0, -1.0, 0.3]}]), "other lights"),
+                        (with_(["lights"], TINY["lights"] * 2), "other lights"),
+                        (with_(["lights"], [{"type": "point", "position": [0.0, 0.5, 0.0]}]), "other lights")):
+        with pytest.raises(PopvolError, match=f"the solution was solved for {word}"):
+            popvol.render(scene_from_dict(other, "s.toml"), solution)
+    for bad, word in (("sol", "str"), (np.zeros(3), "ndarray")):          # (None: solve first)
+        with pytest.raises(PopvolError, match=f"render: solution must be what popvol.solve returns, not {word}"):
+            popvol.render(scene, bad)
+    with pytest.raises(PopvolError, match="solve: scene must be a popvol Scene"):
+        popvol.solve("s.toml")
+
+
 def test_a_keyframe_that_spoils_a_later_frame_is_refused_before_the_first(tmp_path, capsys):
     """Keyframes whose interpolation makes frame 3's camera invalid (its up vector parallel to
     the view): refused, naming frame 3, before frames 1 and 2 are rendered and written (they

@@ -303,6 +303,42 @@ class Medium:
         return replace(self, density=self.derived(f"transport density {cap!r}",
                                                   lambda density: np.minimum(density, np.float32(cap))))
 
+    def intact(self) -> bool:
+        """Whether its fields still hold what the checks of its construction made of them: the
+        types and shapes, the density's least and largest value (finite, >= 0), the optics'
+        ranges, the optical depth's bound. Cheap (two passes over the density; an optics grid
+        adds two); popvol.scene.checked_scene builds a medium that is not intact again."""
+        d, f = self.density, np.isfinite
+
+        def grid_or(value, lo, hi, closed, grey_shape):
+            if isinstance(value, np.ndarray) and value.ndim == 3:
+                a, b = (value.shape == d.shape and value.dtype == np.float32 and value.flags.c_contiguous
+                        and value.size > 0), None
+                if a:
+                    a, b = float(value.min()), float(value.max())
+                    return (lo <= a and b <= hi) if closed else (lo < a and b < hi)
+                return False
+            v = np.asarray(value)
+            return (isinstance(value, (float, np.ndarray)) and v.shape == grey_shape and v.dtype == np.float64
+                    and bool(np.all(f(v))) and bool(np.all((lo <= v) & (v <= hi) if closed else (lo < v) & (v < hi))))
+
+        if not (isinstance(d, np.ndarray) and d.dtype == np.float32 and d.ndim == 3 and d.flags.c_contiguous
+                and min(d.shape) >= 1):
+            return False
+        lo, hi = float(d.min()), float(d.max())
+        if not (lo >= 0.0 and hi < np.inf):
+            return False
+        for v in (self.voxel_size, self.origin):
+            if not (isinstance(v, np.ndarray) and v.shape == (3,) and v.dtype == np.float64 and np.all(f(v))):
+                return False
+        s = self.scale
+        if not (isinstance(s, np.ndarray) and s.shape == (3,) and s.dtype == np.float64 and np.all(f(s))
+                and s.min() >= 0 and s.max() <= MAX_SCALE and np.all(self.voxel_size > 0)):
+            return False
+        if not (grid_or(self.albedo, 0.0, 1.0, True, (3,)) and grid_or(self.g, -1.0, 1.0, False, ())):
+            return False
+        return self.max_optical_depth() <= MAX_OPTICAL_DEPTH
+
     def max_optical_depth(self) -> float:
         """Largest sigma_t times the box's diagonal: a bound on the optical depth of any path
         (checked against MAX_OPTICAL_DEPTH when the medium is made)."""

@@ -313,6 +313,8 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     identity: a medium whose arrays were changed in place must not be solved with ``reuse``.
     ``progress``: optional callable(light index, iteration, residual).
     """
+    from .scene import checked_scene
+    scene = checked_scene(scene, "solve")
     med = scene.medium.refined(scene.method.voxel_depth)     # the medium itself at voxel_depth 0
     n = len(scene.lights)
     n_ch = med.n_channels

@@ -68,6 +68,8 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool | None =
     which is rendered as it is, and where no light has an unscattered part (an environment
     alone), which is lit from the lobes.
     """
+    from .scene import checked_scene
+    scene = checked_scene(scene, "render")
     if solution is None:
         solution = solve(scene)
     cam = scene.camera
@@ -80,6 +82,28 @@ def render(scene: Scene, solution: Solution | None = None, jitter: bool | None =
     return out
 
 
+def solved_for_another(scene: Scene, med, solution: Solution) -> str:
+    """What ``solution`` was solved for that ``scene`` (its medium at the method's voxel depth,
+    ``med``) does not have, in a message's words, or "" where it serves the scene: the same
+    medium (the density, the same array or equal values; its box and optics) and the same
+    lights in the same order (their kind and where their light comes from: Light.key(); their
+    power may differ). The method may differ: a solution made at another resolution lights the
+    same grid (the viewer's drafts render with the full solution)."""
+    solved = solution.medium
+    same = lambda a, b: a is b or (np.shape(a) == np.shape(b) and np.array_equal(a, b))
+    if solution.phi.shape[1] != med.n_channels:
+        return f"a {'grey' if solution.phi.shape[1] == 1 else 'chromatic'} medium"
+    if not (same(solved.density, med.density) and same(solved.origin, med.origin)
+            and same(solved.voxel_size, med.voxel_size) and same(solved.scale, med.scale)
+            and same(solved.albedo, med.albedo) and same(solved.g, med.g)):
+        return "another medium (its density, box or optics differ)"
+    lights = {ds.light_index: ds.light.key() for ds in solution.domains}
+    if solution.phi.shape[0] != len(scene.lights) or any(
+            lights.get(i, light.key()) != light.key() for i, light in enumerate(scene.lights)):
+        return f"other lights ({solution.phi.shape[0]} of them, or another kind, direction or position)"
+    return ""
+
+
 def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, combined: bool | None = None,
                   skip: bool = True) -> tuple:
     """The render kernel's inputs but the image, packed as it takes them (kernels/render.py):
@@ -90,10 +114,16 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     cells are then left out: NO_CELLS)."""
     m = scene.method
     med = scene.medium.refined(m.voxel_depth)     # the grid the solution's fields are on
+    if not isinstance(solution, Solution):
+        raise PopvolError(f"render: solution must be what popvol.solve returns, not {type(solution).__name__}")
     if solution.phi.shape[2:] != med.shape:
         raise PopvolError(f"{scene.source}: the solution's fields are on a {'x'.join(map(str, solution.phi.shape[2:]))} "
                           f"grid, the medium at method.voxel_depth = {m.voxel_depth:g} on "
                           f"{'x'.join(map(str, med.shape))}; solve the scene again")
+    other = solved_for_another(scene, med, solution)
+    if other:
+        raise PopvolError(f"{scene.source}: the solution was solved for {other}; solve the scene again (a "
+                          "solution serves another camera and other light powers, not another medium or other lights)")
     cam = scene.camera
     lo, hi = med.bounds
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb

@@ -41,6 +41,34 @@ class Scene:
     hidden: bool = False           # the frame is outside medium.frames and medium.mode = "clip" hides the medium
 
 
+def checked_scene(scene, what: str) -> "Scene":
+    """``scene`` as :func:`popvol.solve` and :func:`popvol.render` take it: a Scene whose parts
+    are checked again, as the loader checks them (a method, camera, light or medium changed
+    after loading, or a Scene built by hand, gets the loader's one-line PopvolError naming the
+    field, not a crash or a wrong image). The camera and lights are built again through their
+    own checks, the medium only where it is no longer :meth:`Medium.intact`, the method's
+    knobs validated in place. ``what``: the call, for a wrong type ("solve")."""
+    if not isinstance(scene, Scene):
+        raise PopvolError(f"{what}: scene must be a popvol Scene (popvol.load_scene, popvol.scene_from_dict), "
+                          f"not {type(scene).__name__}")
+    src = scene.source
+    for name, value, kind in (("medium", scene.medium, Medium), ("camera", scene.camera, Camera),
+                              ("method", scene.method, Method)):
+        if not isinstance(value, kind):
+            raise PopvolError(f"{src}: scene.{name} must be a popvol {kind.__name__}, not {type(value).__name__}")
+    lights = scene.lights
+    if not isinstance(lights, (list, tuple)) or not lights or not all(isinstance(l, Light) for l in lights):
+        raise PopvolError(f"{src}: scene.lights must be a non-empty list of popvol lights (popvol.LIGHTS), "
+                          f"not {check._show(lights)}")
+    scene.method.validate(src)
+    medium = scene.medium if scene.medium.intact() else dataclasses.replace(scene.medium)
+    lights = [dataclasses.replace(light) for light in lights]
+    for light in lights:
+        light.check(medium)
+    return dataclasses.replace(scene, medium=medium, lights=lights, camera=dataclasses.replace(scene.camera),
+                               background=check.power(scene.background, "background.radiance", src))
+
+
 # ---------------------------------------------------------------------------------------------
 # Loading
 # ---------------------------------------------------------------------------------------------
