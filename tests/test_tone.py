@@ -128,9 +128,41 @@ def test_writers_refuse_bad_pixels_before_tone_mapping(tmp_path, bad):
     img = np.ones((3, 4, 3), np.float32)
     img[1, 2, 0] = bad
     for name in ("x.png", "x.exr"):
-        with pytest.raises(PopvolError, match="non-finite or negative pixels"):
+        with pytest.raises(PopvolError, match=r"image has 1 pixels that are NaN, infinite, negative or beyond "
+                                              r"float32's range \(first at row 1, column 2"):
             images.write_image(tmp_path / name, img)
         assert not (tmp_path / name).exists()
+
+
+@pytest.mark.parametrize("image, options, words", [
+    (np.full((2, 2, 3), 1e39), {}, "beyond float32's range"),           # was written as inf in the EXR
+    (np.zeros((0, 5, 3)), {}, "image has no pixels"),
+    (np.zeros((2, 2, 3), complex), {}, "must hold real numbers, not complex128"),
+    (np.zeros((2, 2, 3), object), {}, "must hold real numbers, not object"),
+    (np.ones((2, 2, 3)), {"exposure": float("nan")}, "exposure = nan must be 'auto' or a finite number"),
+    (np.ones((2, 2, 3)), {"exposure": 1e6}, "[-64, 64]"),
+    (np.ones((2, 2, 3)), {"exposure": None}, "exposure = None"),
+    (np.ones((2, 2, 3)), {"exr": "x.png"}, "must name an .exr file"),
+    (np.ones((2, 2, 3)), {"exr": 5}, "write_image: exr must be a file name (str or Path), not int"),
+])
+def test_write_image_refuses_what_it_cannot_write_in_one_line(tmp_path, image, options, words):
+    """write_image from the API: each bad image or argument is one PopvolError line (they were
+    TypeErrors, OverflowErrors, silent black or white PNGs and an EXR of inf), nothing written."""
+    with pytest.raises(PopvolError) as e:
+        images.write_image(tmp_path / "x.png", image, **options)
+    assert words in str(e.value) and "\n" not in str(e.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_write_image_with_an_exr_that_is_a_folder_replaces_nothing(tmp_path):
+    """An ``exr`` that names a folder: refused, naming it, before the PNG is replaced (the PNG
+    was replaced, then the rename of the EXR failed, against the promise that neither is)."""
+    images.write_image(tmp_path / "keep.png", np.ones((2, 2, 3)))
+    before = (tmp_path / "keep.png").read_bytes()
+    (tmp_path / "sub.exr").mkdir()
+    with pytest.raises(PopvolError, match=r"sub.exr: is a folder, not a file"):
+        images.write_image(tmp_path / "keep.png", np.full((2, 2, 3), 0.25), exr=tmp_path / "sub.exr")
+    assert (tmp_path / "keep.png").read_bytes() == before
 
 
 def test_exr_stays_linear_whatever_the_tone(tmp_path):

@@ -32,6 +32,7 @@ from ..errors import PopvolError
 from .files import folder_problem, why_missing, write_atomically_together
 
 SUFFIXES = (".png", ".exr")
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 #: The tone curves of the PNG.
 TONES = ("aces", "clip")
@@ -169,12 +170,21 @@ def aces_exact(rgb) -> np.ndarray:
     return x.reshape(np.shape(rgb))
 
 
+#: the exposures a number may give, in stops (method.exposure's range)
+EXPOSURE_STOPS = 64.0
+
+
 def resolve_exposure(rgb, exposure="auto", tone: str = "aces") -> float:
-    """``exposure`` in stops: the number itself, or :func:`auto_exposure` of ``rgb`` for "auto"."""
+    """``exposure`` in stops: the number itself (within +-EXPOSURE_STOPS), or
+    :func:`auto_exposure` of ``rgb`` for "auto"."""
     if isinstance(exposure, str):
         if exposure != "auto":
             raise PopvolError(f"exposure {exposure!r} must be a number of stops or 'auto'")
         return auto_exposure(rgb, tone=tone)
+    if isinstance(exposure, bool) or not isinstance(exposure, (int, float, np.integer, np.floating)) \
+            or not abs(float(exposure)) <= EXPOSURE_STOPS:
+        raise PopvolError(f"exposure = {exposure!r} must be 'auto' or a finite number of stops in "
+                          f"[{-EXPOSURE_STOPS:g}, {EXPOSURE_STOPS:g}]")
     return float(exposure)
 
 
@@ -200,11 +210,23 @@ def tonemap(rgb, exposure="auto", tone: str = "aces") -> np.ndarray:
 
 
 def _check(path: Path, rgb) -> np.ndarray:
+    """``rgb`` as an image :func:`write_image` writes: (height, width, 3) real numbers, at least
+    one pixel, finite, >= 0 and within float32's range (an EXR stores float32); else one line
+    naming ``path``, how many pixels are wrong and where the first is."""
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise PopvolError(f"{path}: image must be (height, width, 3), got {rgb.shape}")
-    if not np.all(np.isfinite(rgb)) or rgb.min() < 0:
-        raise PopvolError(f"{path}: image has non-finite or negative pixels; this is a popvol bug, please report it")
+    if rgb.dtype.kind not in "fiub":
+        raise PopvolError(f"{path}: image must hold real numbers, not {rgb.dtype} values")
+    if rgb.size == 0:
+        raise PopvolError(f"{path}: image has no pixels (shape {rgb.shape})")
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.isfinite(rgb) & (rgb >= 0) & (rgb <= _FLOAT32_MAX)).all(axis=2)
+    if bad.any():
+        row, col = (int(v) for v in np.argwhere(bad)[0])
+        raise PopvolError(f"{path}: image has {int(bad.sum())} pixels that are NaN, infinite, negative or beyond "
+                          f"float32's range (first at row {row}, column {col}: {rgb[row, col].tolist()}); it must be "
+                          "linear radiance >= 0")
     if folder_problem(path.parent):
         raise PopvolError(f"{path}: folder {path.parent} {folder_problem(path.parent)}")
     return rgb
@@ -241,8 +263,12 @@ def _exr_writer(path: Path, rgb):
 
 
 def write_together(items) -> None:
-    """Write (path, write) pairs together (io.files.write_atomically_together); an OSError of
-    the temporary files or the renames becomes a one-line PopvolError naming the first path."""
+    """Write (path, write) pairs together (io.files.write_atomically_together); a path that is a
+    folder is refused before anything is written, and an OSError of the temporary files or the
+    renames becomes a one-line PopvolError naming the first path."""
+    for path, _ in items:
+        if Path(path).is_dir():
+            raise PopvolError(f"{path}: is a folder, not a file")
     try:
         write_atomically_together(items)
     except OSError as e:
@@ -374,8 +400,18 @@ def write_image(path, rgb, exposure="auto", tone: str = "aces", exr=None) -> Non
     """Write by suffix: .png (tone mapped with ``exposure`` and ``tone``, see :func:`tonemap`)
     or .exr (linear; exposure and tone do not apply). ``exr``: also write the linear image
     there, together with ``path``: if either write fails, neither file is replaced."""
-    path = Path(path)
+    path = _output_path(path, "path")
     items = [(path, image_writer(path, rgb, exposure, tone))]
     if exr is not None:
-        items.append((Path(exr), _exr_writer(Path(exr), rgb)))
+        exr = _output_path(exr, "exr")
+        if exr.suffix.lower() != ".exr":
+            raise PopvolError(f"exr = {exr}: must name an .exr file")
+        items.append((exr, _exr_writer(exr, rgb)))
     write_together(items)
+
+
+def _output_path(path, name: str) -> Path:
+    """``path`` (str or os.PathLike) as a Path; else one line naming the argument."""
+    if not isinstance(path, (str, os.PathLike)) or isinstance(path, bytes):
+        raise PopvolError(f"write_image: {name} must be a file name (str or Path), not {type(path).__name__}")
+    return Path(path)
