@@ -553,6 +553,30 @@ def test_a_scene_changed_into_valid_values_renders_as_if_loaded_so():
     np.testing.assert_array_equal(got, want)
 
 
+@pytest.mark.parametrize("call, words", [
+    (lambda s: popvol.load_scene(123), "load_scene: path must be a file name (str or Path), not int"),
+    (lambda s: popvol.load_scene(b"s.toml"), "not bytes"),
+    (lambda s: popvol.scene_from_dict(TINY, base_dir=None), "scene_from_dict: base_dir must be a file name"),
+    (lambda s: popvol.solve(s, reuse="x"), "solve: reuse must be an earlier popvol.solve's Solution or None, not str"),
+    (lambda s: popvol.solve(s, warm=np.zeros(3)), "solve: warm must be"),
+    (lambda s: popvol.solve(s, progress=5), "solve: progress must be a function"),
+    (lambda s: popvol.render_sequence(s, "1-2", "q_#.png"), "render_sequence: scene (the scene file's path) must be "
+     "a file name (str or Path), not Scene"),
+    (lambda s: popvol.render_sequence(None, "1", "q_#.png", progress=5), "render_sequence: progress must be"),
+    (lambda s: popvol.render_sequence(None, "1", "q_#.png", client="x"), "render_sequence: client must be"),
+    (lambda s: popvol.render_sequence(None, "1", "q_#.png", frame=2), "render_sequence: unknown option(s) frame"),
+])
+def test_api_arguments_of_the_wrong_kind_are_named(tmp_path, monkeypatch, call, words):
+    """The Python API's arguments of the wrong kind: one PopvolError line naming the function and
+    the argument (they were AttributeErrors and TypeErrors from inside, some after a frame was
+    rendered), before any work."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(PopvolError) as e:
+        call(scene_from_dict(TINY, "s.toml"))
+    assert words in one_line(str(e.value))
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_solution_of_another_scene_is_refused():
     """render(scene, solution) refuses a solution solved for another medium (another seed of the
     same size, other optics) or other lights (another count, kind or direction), which it drew

@@ -315,6 +315,13 @@ def solve(scene, progress=None, reuse: Solution | None = None, warm: Solution | 
     """
     from .scene import checked_scene
     scene = checked_scene(scene, "solve")
+    for name, value in (("reuse", reuse), ("warm", warm)):
+        if value is not None and not isinstance(value, Solution):
+            raise PopvolError(f"solve: {name} must be an earlier popvol.solve's Solution or None, not "
+                              f"{type(value).__name__}")
+    if progress is not None and not callable(progress):
+        raise PopvolError(f"solve: progress must be a function (light, iteration, residual) or None, not "
+                          f"{type(progress).__name__}")
     med = scene.medium.refined(scene.method.voxel_depth)     # the medium itself at voxel_depth 0
     n = len(scene.lights)
     n_ch = med.n_channels

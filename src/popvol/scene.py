@@ -9,6 +9,7 @@ Objects are chosen by ``type`` (as in Mitsuba 3). The schema, with every default
 from __future__ import annotations
 
 import dataclasses
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,14 @@ class Scene:
     files: tuple[Path, ...] = ()   # the files it reads (medium, grids, maps), resolved
     frame: int | None = None       # its frame of a sequence (popvol.sequence), None for a still scene
     hidden: bool = False           # the frame is outside medium.frames and medium.mode = "clip" hides the medium
+
+
+def file_name(value, what: str):
+    """``value`` if it is a file or folder name (str or os.PathLike, not bytes); else one line
+    naming ``what`` (the argument) and the type it got."""
+    if isinstance(value, (str, os.PathLike)) and not isinstance(value, bytes):
+        return value
+    raise PopvolError(f"{what} must be a file name (str or Path), not {type(value).__name__}")
 
 
 def checked_scene(scene, what: str) -> "Scene":
@@ -125,7 +134,7 @@ def load_scene(path: str | Path | None = None, frame: int | None = None, **overr
     if path is None:
         scene = scene_from_dict(DEMO_SCENE, source="<demo scene>", frame=frame)
     else:
-        p = Path(path)
+        p = Path(file_name(path, "load_scene: path"))
         scene = scene_from_dict(read_scene_file(p), source=str(p), base_dir=p.parent, frame=frame)
     return apply_overrides(scene, **overrides) if overrides else scene
 
@@ -158,6 +167,7 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: str | Path = "
     ``frame`` builds that frame (None: the first), by :func:`popvol.sequence.frame_data`."""
     if not isinstance(data, dict):
         raise PopvolError(f"{source}: a scene must be a table/dict, got {type(data).__name__}")
+    file_name(base_dir, "scene_from_dict: base_dir")
     check.known_keys(data, _TOP_KEYS, "", source)
     hidden = False
     if frame is not None or "sequence" in data or "keyframes" in data or _is_file_sequence(data.get("medium")):

@@ -860,7 +860,22 @@ def render_sequence(scene, frames=None, output: str = "frame_####.png", *, clien
     the previous frame's solution. ``progress``: callable(result) after each frame.
     ``overrides``: width, height and method knobs, as for :func:`popvol.load_scene`.
     """
-    scene_path = None if scene is None else str(scene)
+    from .scene import file_name
+    from .method import KNOB
+    scene_path = None if scene is None else str(file_name(scene, "render_sequence: scene (the scene file's path)"))
+    file_name(output, "render_sequence: output")
+    if exr is not None:
+        file_name(exr, "render_sequence: exr")
+    if progress is not None and not callable(progress):
+        raise PopvolError(f"render_sequence: progress must be a function (result) or None, not "
+                          f"{type(progress).__name__}")
+    if client is not None and not hasattr(client, "submit"):
+        raise PopvolError(f"render_sequence: client must be a dask.distributed Client or None, not "
+                          f"{type(client).__name__}")
+    unknown = sorted(k for k in overrides if k not in KNOB and k not in ("width", "height"))
+    if unknown:
+        raise PopvolError(f"render_sequence: unknown option(s) {', '.join(unknown)} (known: width, height and the "
+                          "method's knobs; frames are chosen by frames)")
     seq = load_sequence(scene_path)
     frames = seq.resolve_frames(frames)
     check_patterns(output, exr, frames)
