@@ -105,7 +105,8 @@ def render_error(tmp_path, scene_text, words):
     ('albedo = {grid = "wrong_shape"}\n', ["medium.albedo grid", "(3, 3, 3)", "(4, 4, 4)"]),
     ('albedo = {grid = "too_big"}\n', ["medium.albedo grid", "outside [0, 1]", "voxel (0, 0, 0): 1.5)"]),
     ('g = {grid = "g_one"}\n', ["medium.g grid", "outside (-1, 1)"]),
-    ('albedo = {grid = "nope"}\n', ["no array named 'nope'", "density"]),
+    ('albedo = {grid = "nope"}\n', ["s.toml: medium.albedo: ", "no array named 'nope'", "'density'"]),
+    ('g = {}\n', ["s.toml: medium.g: ", "no array named 'g'"]),
     ('albedo = {file = "x.npz", grid = "a", colour = 1}\n', ["unknown key medium.albedo.colour"]),
     ('g = {grid = "g_neg"}\n[experimental]\ndecay = "paper"\n', ["decay = 'paper'", "g >= 0"]),
 ])

@@ -577,6 +577,19 @@ def test_api_arguments_of_the_wrong_kind_are_named(tmp_path, monkeypatch, call, 
     assert list(tmp_path.iterdir()) == []
 
 
+def test_smaller_messages_of_the_second_sweep(tmp_path, capsys):
+    """A light's keyframe index in other digits than 0-9 names no light (Arabic-Indic zero was
+    taken as light 0); bench --repeat has a bound (a huge one ran until killed); an .npz's array
+    names are cut in a message (3000- and 5000-character names made an 8 kB line)."""
+    scene = toml_scene(tmp_path, TINY_TOML + '[[keyframes]]\nframe = 1\n[keyframes.lights."\u0660"]\n'
+                       'direction = [0, -1, 0.2]\n[[keyframes]]\nframe = 2\n')
+    cli_refuses(capsys, ["render", scene, "-o", tmp_path / "f_#.png"], "names no light")
+    cli_refuses(capsys, ["bench", "--quick", "--repeat", "99999999999999999999"], "--repeat", "1000")
+    np.savez(tmp_path / "long.npz", **{"a" * 5000: np.ones((2, 2, 2)), **{f"x{i}": np.ones(1) for i in range(20)}})
+    msg = refused(file_scene(tmp_path / "long.npz", grid="b" * 3000), "no array named", "and 9 more")
+    assert len(msg) < 400
+
+
 def test_a_solution_of_another_scene_is_refused():
     """render(scene, solution) refuses a solution solved for another medium (another seed of the
     same size, other optics) or other lights (another count, kind or direction), which it drew

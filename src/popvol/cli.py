@@ -308,7 +308,7 @@ def _frame_line(r: dict) -> str:
 @cli.command()
 @click.option("--json", "json_out", type=click.Path(dir_okay=False, allow_dash=True),
               help="Write the figures as JSON ('-': to stdout, the tables then go to stderr).")
-@click.option("--repeat", type=click.IntRange(min=1), default=None,
+@click.option("--repeat", type=click.IntRange(min=1, max=1000), default=None,
               help="Timed runs per figure, after a warm-up (default 5; 2 with --quick).")
 @click.option("--data", type=click.Path(exists=True, file_okay=False),
               help="Folder holding the WDAS volume (wdas_cloud_sixteenth_dense.npz, in it or in "
@@ -510,8 +510,9 @@ def view(scene, port, host, no_browser, width, height, resolution, draft_resolut
                           "pip install 'popvol[viewer]'") from None
     from .viewer.engine import Engine
     from .viewer.server import serve
-    if not Path(save_dir).is_dir():
-        raise PopvolError(f"--save-dir {save_dir}: folder does not exist")
+    from .io.files import folder_problem
+    if folder_problem(save_dir):
+        raise PopvolError(f"--save-dir {save_dir}: folder {folder_problem(save_dir)}")
     engine = Engine(scene, width=width, height=height, resolution=resolution, draft_resolution=draft_resolution)
     serve(engine, host, port, open_browser=not no_browser, save_dir=save_dir, echo=click.echo)
 

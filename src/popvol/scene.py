@@ -312,7 +312,8 @@ def _optics_grid(spec: dict, key: str, m: dict, src: str, base: Path) -> np.ndar
     path = _path(spec.get("file", m.get("file")), name, src, base)
     # a .vol file holds one unnamed grid; the other formats name theirs (by default the key's name)
     grid = _text(spec.get("grid", None if path.suffix.lower() == ".vol" else key), f"medium.{key}.grid", src)
-    return read_volume(path, grid, signed=(key == "g"), field=f"{src}: {name}").density
+    field = f"{src}: {name if 'file' in spec else f'medium.{key}'}"     # the grid the medium's file lacks
+    return read_volume(path, grid, signed=(key == "g"), field=field).density
 
 
 def _optics(med, given: dict) -> dict:

@@ -423,7 +423,8 @@ def _keyframes(data: dict, src: str) -> list[Keyframe]:
             kl = {str(j): t for j, t in enumerate(kl)}
         check.table(kl, f"{name}.lights", src)
         for idx, t in kl.items():
-            j = int(idx) if check._is_int(idx) else (int(idx) if isinstance(idx, str) and idx.isdigit() else None)
+            written = isinstance(idx, str) and idx.isascii() and idx.isdigit()     # 0-9 only, as frames
+            j = int(idx) if check._is_int(idx) or written else None
             if j is None or not 0 <= j < len(lights):
                 shown = idx if isinstance(idx, str) and idx.isprintable() and len(idx) <= 20 else check._show(idx)[:20]
                 raise PopvolError(f"{src}: {name}.lights.{shown} names no light: the scene has "

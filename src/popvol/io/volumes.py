@@ -92,6 +92,14 @@ def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
 BYTES_PER_READ_VOXEL = 4 + 2
 
 
+def _names(names, most: int = 12, width: int = 40) -> str:
+    """An archive's array names for a one-line message: at most ``most``, each cut to ``width``
+    characters, and how many more there are."""
+    shown = [repr(n if len(n) <= width else n[:width] + "...") for n in names[:most]]
+    more = f" and {len(names) - most} more" if len(names) > most else ""
+    return (", ".join(shown) + more) or "(none)"
+
+
 @contextlib.contextmanager
 def _npz_member(path: Path, key: str):
     """The open archive of .npz ``path`` once array ``key``'s header is checked
@@ -101,7 +109,8 @@ def _npz_member(path: Path, key: str):
         # open the file ourselves: np.load leaks its handle when it rejects a file
         with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
             if key not in z.files:
-                raise PopvolError(f"{path}: no array named {key!r}; arrays in the file: {', '.join(z.files) or '(none)'}")
+                raise PopvolError(f"{path}: no array named {check._show(key)}; arrays in the file: "
+                                  f"{_names(z.files)}")
             _check_npz_member(z, key, path)
             yield z
     except PopvolError:
@@ -221,7 +230,7 @@ def write_vol(path, density, bbox_min, bbox_max) -> None:
 def read_volume(path, grid: str | None = None, signed: bool = False, field: str | None = None) -> VolumeData:
     """Read a grid, choosing the reader by suffix (.npz, .vol, .vdb). Densities must be >= 0;
     ``signed`` grids (a per-voxel g) may be negative. ``field``: where the path came from (e.g.
-    ``"scene.toml: medium.file"``), named where the path is not a file."""
+    ``"scene.toml: medium.file"``), named where the path is not a file or has no such array."""
     path = Path(path)
     where = f"{field}: " if field else ""
     if not path.exists():
@@ -231,7 +240,12 @@ def read_volume(path, grid: str | None = None, signed: bool = False, field: str 
                           f"file ({', '.join(SUFFIXES)})")
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return read_npz(path, grid, signed)
+        try:
+            return read_npz(path, grid, signed)
+        except PopvolError as e:            # which of the scene's grids asked for the missing array
+            if where and "no array named" in str(e):
+                raise PopvolError(f"{where}{e}") from None
+            raise
     if suffix == ".vol":
         if grid not in (None, "density"):
             raise PopvolError(f"{path}: .vol files hold one unnamed grid; remove medium.grid = {grid!r}")

@@ -360,9 +360,10 @@ class Engine:
         """Write the full view as PNG and its scene as TOML in ``folder`` under the first free
         name popvol-view-NNN; returns (png path, toml path)."""
         import tomli_w
+        from ..io.files import folder_problem
         folder = Path(folder)
-        if not folder.is_dir():
-            raise PopvolError(f"save folder {folder} does not exist")
+        if folder_problem(folder):
+            raise PopvolError(f"save folder {folder} {folder_problem(folder)}")
         f = self._full_frame(settings)
         for n in range(1, 100_000):
             png, toml = folder / f"popvol-view-{n:03d}.png", folder / f"popvol-view-{n:03d}.toml"
