@@ -590,6 +590,16 @@ def test_smaller_messages_of_the_second_sweep(tmp_path, capsys):
     assert len(msg) < 400
 
 
+@pytest.mark.parametrize("density", [np.full((4, 4, 4), "a"), np.ones((4, 4, 4), complex), np.ones((4, 4, 4), object)])
+def test_a_medium_of_text_complex_or_objects_is_refused(density):
+    """popvol.Medium from the API with a density of text, complex numbers or objects: one line
+    (text raised NumPy's ValueError, complex numbers were cast with only a ComplexWarning)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(PopvolError, match=f"density must hold real numbers, not {density.dtype}"):
+            popvol.Medium(density, 1.0, np.zeros(3))
+
+
 def test_a_solution_of_another_scene_is_refused():
     """render(scene, solution) refuses a solution solved for another medium (another seed of the
     same size, other optics) or other lights (another count, kind or direction), which it drew

@@ -96,6 +96,8 @@ class Medium:
         d = np.asarray(self.density)
         if d.ndim != 3 or min(d.shape) < 1:
             raise PopvolError(f"{self.source}: density must be a 3-D array with every size >= 1, got shape {d.shape}")
+        if d.dtype.kind not in "fiub":
+            raise PopvolError(f"{self.source}: density must hold real numbers, not {d.dtype} values")
         check_float32_range(d, self.source, "density")
         d = np.ascontiguousarray(d, dtype=np.float32)
         bad = ~np.isfinite(d)
