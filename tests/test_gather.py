@@ -545,7 +545,7 @@ def test_a_camera_move_gathers_from_what_the_last_frame_kept(monkeypatch):
     assert len(made) == 3
     np.testing.assert_allclose(relit, 2.0 * kept, rtol=1e-5, atol=1e-7)
     denser = dataclasses.replace(moved, medium=dataclasses.replace(moved.medium, scale=60.0))
-    assert not np.array_equal(popvol.render(denser, sol), kept) and len(made) == 4
+    assert not np.array_equal(popvol.render(denser, popvol.solve(denser)), kept) and len(made) == 4
 
 
 def test_gather_within_the_occupied_box_is_the_whole_grids(monkeypatch):

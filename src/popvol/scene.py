@@ -66,7 +66,8 @@ def checked_scene(scene, what: str) -> "Scene":
         if not isinstance(value, kind):
             raise PopvolError(f"{src}: scene.{name} must be a popvol {kind.__name__}, not {type(value).__name__}")
     lights = scene.lights
-    if not isinstance(lights, (list, tuple)) or not lights or not all(isinstance(l, Light) for l in lights):
+    if not isinstance(lights, (list, tuple)) or not all(isinstance(l, Light) for l in lights) or (
+            not lights and scene.environment is None):     # an environment map of zeros gives no light
         raise PopvolError(f"{src}: scene.lights must be a non-empty list of popvol lights (popvol.LIGHTS), "
                           f"not {check._show(lights)}")
     scene.method.validate(src)
