@@ -603,7 +603,8 @@ def test_a_medium_of_text_complex_or_objects_is_refused(density):
 def test_a_solution_of_another_scene_is_refused():
     """render(scene, solution) refuses a solution solved for another medium (another seed of the
     same size, other optics) or other lights (another count, kind or direction), which it drew
-    silently wrong; the camera and the lights' power may change."""
+    silently wrong; the camera may change (and a scene that differs in its lights' power only
+    is drawn with the solution's powers, as Solution.relit would change them)."""
     scene = scene_from_dict(TINY, "s.toml")
     solution = popvol.solve(scene)
     moved = with_(["camera"], {"width": 16, "height": 9, "origin": [0.0, 0.5, 3.0], "target": [0.0, 0.3, 0.0]})

@@ -86,8 +86,8 @@ def solved_for_another(scene: Scene, med, solution: Solution) -> str:
     """What ``solution`` was solved for that ``scene`` (its medium at the method's voxel depth,
     ``med``) does not have, in a message's words, or "" where it serves the scene: the same
     medium (the density, the same array or equal values; its box and optics) and the same
-    lights in the same order (their kind and where their light comes from: Light.key(); their
-    power may differ). The method may differ: a solution made at another resolution lights the
+    lights in the same order (their kind and where their light comes from: Light.key(); the
+    image takes their power from the solution: Solution.relit gives it other powers). The method may differ: a solution made at another resolution lights the
     same grid (the viewer's drafts render with the full solution)."""
     solved = solution.medium
     same = lambda a, b: a is b or (np.shape(a) == np.shape(b) and np.array_equal(a, b))
@@ -123,7 +123,7 @@ def render_inputs(scene: Scene, solution: Solution, jitter: bool | None = None, 
     other = solved_for_another(scene, med, solution)
     if other:
         raise PopvolError(f"{scene.source}: the solution was solved for {other}; solve the scene again (a "
-                          "solution serves another camera and other light powers, not another medium or other lights)")
+                          "solution serves another camera, not another medium or other lights)")
     cam = scene.camera
     lo, hi = med.bounds
     # grey per-voxel albedo, or an RGB constant as a (1, 1, 1) grid of 1 times albedo_rgb

@@ -24,6 +24,7 @@ import math
 import os
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -318,19 +319,24 @@ def _flush_c_streams() -> None:
         ctypes.CDLL(None).fflush(None)
 
 
+#: one held block at a time: the file descriptors it swaps are the process's
+_HOLDING = threading.Lock()
+
+
 @contextlib.contextmanager
 def library_output(said: list):
     """Hold what C/C++ code writes to the process's stdout and stderr (file descriptors 1 and 2)
     inside the block, and append it to ``said`` (one str) after: OpenEXR reports a damaged
     file's pixels there (its C library on stderr, the Python binding's warning on stdout) before
     the binding raises. Python's own streams are flushed first, so nothing of theirs is held;
-    what another thread prints during the block is held with it (the block is one file read)."""
+    what another thread prints during the block is held with it (the block is one file read),
+    and one block runs at a time (a lock), so threads reading EXRs do not swap each other's."""
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
     _flush_c_streams()
     python = io.StringIO()                 # what the binding prints through Python's streams
-    with tempfile.TemporaryFile() as held:
+    with _HOLDING, tempfile.TemporaryFile() as held:
         saved = [os.dup(1), os.dup(2)]
         try:
             os.dup2(held.fileno(), 1)

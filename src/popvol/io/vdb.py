@@ -77,7 +77,7 @@ def debian_python() -> str | None:
 
 
 #: the file formats whose layout :func:`cut_short` knows (OpenVDB 2.2 to 11 write 220-224)
-KNOWN_FILE_VERSIONS = range(220, 300)
+KNOWN_FILE_VERSIONS = range(220, 225)
 
 
 def cut_short(path: Path) -> str | None:
@@ -88,9 +88,12 @@ def cut_short(path: Path) -> str | None:
     byte offsets of its start, its data and its end). A grid that ends beyond the last byte, or a
     header that does, is a truncated file. OpenVDB reads such a file for up to a minute and
     gigabytes of memory before it refuses it (a length read from the missing bytes)."""
-    size = path.stat().st_size
-    with open(path, "rb") as f:
-        data = f.read(1 << 20)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            data = f.read(1 << 20)
+    except OSError:                             # unreadable: OpenVDB's reader says so
+        return None
     pos = 0
 
     def take(n: int) -> bytes:
@@ -126,7 +129,7 @@ def cut_short(path: Path) -> str | None:
             start, block, end = struct.unpack("<qqq", take(24))
             if end > size:
                 return f"grid {name!r} ends at byte {end:,} but the file has {size:,} bytes: it is truncated"
-            if not 0 < end <= size:
+            if not pos < end <= size:              # a descriptor that points back: not a layout known here
                 return None
             pos = end
     except EOFError:
