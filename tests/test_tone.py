@@ -154,6 +154,12 @@ def test_write_image_refuses_what_it_cannot_write_in_one_line(tmp_path, image, o
     assert list(tmp_path.iterdir()) == []
 
 
+def test_the_exposure_range_is_the_knobs():
+    """io.images.EXPOSURE_STOPS, what write_image takes, is method.exposure's range."""
+    from popvol.method import KNOB
+    assert KNOB["exposure"].allowed == (-images.EXPOSURE_STOPS, images.EXPOSURE_STOPS)
+
+
 def test_write_image_with_an_exr_that_is_a_folder_replaces_nothing(tmp_path):
     """An ``exr`` that names a folder: refused, naming it, before the PNG is replaced (the PNG
     was replaced, then the rename of the EXR failed, against the promise that neither is)."""

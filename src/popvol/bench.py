@@ -267,12 +267,12 @@ def locate(name: str, data: dict) -> tuple[Path | None, str | None]:
     d = Path(data["dir"])
     if not d.is_dir():
         return None, f"{name}: data folder {d} ({data['from']}) is not a folder"
-    from .io.files import why_missing
+    from .io.files import why_not_file
     for p in (d / name, d / "npz" / name):
         if p.is_file():
             return p, None
         if p.is_symlink() or p.exists():           # there, but not a file it can read
-            return None, f"{p} ({data['from']}) " + (why_missing(p) if not p.exists() else "is not a file")
+            return None, f"{p} ({data['from']}) {why_not_file(p)}"
     return None, f"{name} not found in {d} or {d / 'npz'} ({data['from']})"
 
 

@@ -511,8 +511,8 @@ def view(scene, port, host, no_browser, width, height, resolution, draft_resolut
     from .viewer.engine import Engine
     from .viewer.server import serve
     from .io.files import folder_problem
-    if folder_problem(save_dir):
-        raise PopvolError(f"--save-dir {save_dir}: folder {folder_problem(save_dir)}")
+    if problem := folder_problem(save_dir):
+        raise PopvolError(f"--save-dir {save_dir}: folder {problem}")
     engine = Engine(scene, width=width, height=height, resolution=resolution, draft_resolution=draft_resolution)
     serve(engine, host, port, open_browser=not no_browser, save_dir=save_dir, echo=click.echo)
 
@@ -528,8 +528,8 @@ def _method_label(method) -> str:
 def _check_writable(path: str, option: str) -> None:
     from .io.files import folder_problem
     parent = Path(path).resolve().parent
-    if folder_problem(parent):
-        raise PopvolError(f"{option} {path}: folder {parent} {folder_problem(parent)}")
+    if problem := folder_problem(parent):
+        raise PopvolError(f"{option} {path}: folder {parent} {problem}")
     if Path(path).is_dir():
         raise PopvolError(f"{option} {path}: is a folder, not a file")
     from .io.files import check_writable_folder

@@ -88,12 +88,12 @@ def load(path, scale=1.0, field: str = "scale", where: str = "") -> EnvMap:
     that is missing or unreadable is a one-line PopvolError that begins with ``where`` (e.g.
     "scene.toml: lights[0].file: ")."""
     from pathlib import Path
-    from .io.files import why_missing
+    from .io.files import why_not_file
     from .io.images import read_exr
     path = Path(path)
     if not path.is_file():
         raise PopvolError(f"{where}environment map {path} "
-                          + ("is a folder" if path.is_dir() else why_missing(path) if not path.exists() else "is not a file"))
+                          + ("is a folder" if path.is_dir() else why_not_file(path)))
     suffix = path.suffix.lower()
     try:
         if suffix == ".exr":

@@ -277,8 +277,8 @@ def _load_reference(path) -> tuple[Reference, tuple | None]:
     from .io.images import exr_size, read_exr
     path = Path(path)
     if not path.is_file():
-        from .io.files import why_missing
-        raise PopvolError(f"{path}: reference image {why_missing(path) if not path.exists() else 'is not a file'}")
+        from .io.files import why_not_file
+        raise PopvolError(f"{path}: reference image {why_not_file(path)}")
     width, height = exr_size(path)
     if width > MAX_SIDE or height > MAX_SIDE or width * height > MAX_PIXELS:
         raise PopvolError(f"{path}: the reference is {width}x{height} pixels; popvol renders at the reference's "

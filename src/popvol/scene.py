@@ -9,7 +9,6 @@ Objects are chosen by ``type`` (as in Mitsuba 3). The schema, with every default
 from __future__ import annotations
 
 import dataclasses
-import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +18,7 @@ import numpy as np
 from . import check
 from .camera import Camera
 from .errors import PopvolError
-from .io.files import why_missing
+from .io.files import file_name, why_missing
 from .lights import LIGHTS, Light
 from .medium import Medium, check_box
 from .method import KNOB, Method, mark_overridden, method_from_tables
@@ -40,14 +39,6 @@ class Scene:
     files: tuple[Path, ...] = ()   # the files it reads (medium, grids, maps), resolved
     frame: int | None = None       # its frame of a sequence (popvol.sequence), None for a still scene
     hidden: bool = False           # the frame is outside medium.frames and medium.mode = "clip" hides the medium
-
-
-def file_name(value, what: str):
-    """``value`` if it is a file or folder name (str or os.PathLike, not bytes); else one line
-    naming ``what`` (the argument) and the type it got."""
-    if isinstance(value, (str, os.PathLike)) and not isinstance(value, bytes):
-        return value
-    raise PopvolError(f"{what} must be a file name (str or Path), not {type(value).__name__}")
 
 
 def checked_scene(scene, what: str) -> "Scene":

@@ -655,8 +655,8 @@ def check_patterns(output, exr, frames, src: str = "render") -> None:
                               "file name for the frame number (e.g. out/frame_####.png), or render one frame "
                               "(--frames N)")
         folder = Path(pat).resolve().parent
-        if folder_problem(folder):
-            raise PopvolError(f"{opt} {pat}: folder {folder} {folder_problem(folder)}")
+        if problem := folder_problem(folder):
+            raise PopvolError(f"{opt} {pat}: folder {folder} {problem}")
         check_writable_folder(folder, f"{opt} {pat}")
     if exr is not None and Path(str(exr)).resolve() == Path(str(output)).resolve():
         raise PopvolError(f"--exr {exr} is also -o/--output; give them different names")
@@ -861,7 +861,7 @@ def render_sequence(scene, frames=None, output: str = "frame_####.png", *, clien
     the previous frame's solution. ``progress``: callable(result) after each frame.
     ``overrides``: width, height and method knobs, as for :func:`popvol.load_scene`.
     """
-    from .scene import file_name
+    from .io.files import file_name
     from .method import KNOB
     scene_path = None if scene is None else str(file_name(scene, "render_sequence: scene (the scene file's path)"))
     file_name(output, "render_sequence: output")

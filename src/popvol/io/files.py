@@ -88,3 +88,18 @@ def folder_problem(folder) -> str:
         return "is a file, not a folder"
     why = why_missing(folder)
     return "does not exist" if why == "not found" else why
+
+
+def why_not_file(path) -> str:
+    """Why ``path`` is not a file to read: "is not a file" where it exists (a folder, a device),
+    else :func:`why_missing`."""
+    return "is not a file" if Path(path).exists() else why_missing(path)
+
+
+def file_name(value, what: str):
+    """``value`` if it is a file or folder name (str or os.PathLike, not bytes); else one line
+    naming ``what`` (the argument) and the type it got."""
+    if isinstance(value, (str, os.PathLike)) and not isinstance(value, bytes):
+        return value
+    from ..errors import PopvolError
+    raise PopvolError(f"{what} must be a file name (str or Path), not {type(value).__name__}")

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PopvolError
-from .files import folder_problem, why_missing, write_atomically_together
+from .files import file_name, folder_problem, why_missing, write_atomically_together
 
 SUFFIXES = (".png", ".exr")
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -171,8 +171,8 @@ def aces_exact(rgb) -> np.ndarray:
     return x.reshape(np.shape(rgb))
 
 
-#: the exposures a number may give, in stops (method.exposure's range)
-EXPOSURE_STOPS = 64.0
+#: the exposures a number may give, in stops: method.exposure's range
+EXPOSURE_STOPS = 64.0      # tests/test_tone.py holds it equal to KNOB["exposure"].allowed
 
 
 def resolve_exposure(rgb, exposure="auto", tone: str = "aces") -> float:
@@ -228,8 +228,8 @@ def _check(path: Path, rgb) -> np.ndarray:
         raise PopvolError(f"{path}: image has {int(bad.sum())} pixels that are NaN, infinite, negative or beyond "
                           f"float32's range (first at row {row}, column {col}: {rgb[row, col].tolist()}); it must be "
                           "linear radiance >= 0")
-    if folder_problem(path.parent):
-        raise PopvolError(f"{path}: folder {path.parent} {folder_problem(path.parent)}")
+    if problem := folder_problem(path.parent):
+        raise PopvolError(f"{path}: folder {path.parent} {problem}")
     return rgb
 
 
@@ -418,6 +418,4 @@ def write_image(path, rgb, exposure="auto", tone: str = "aces", exr=None) -> Non
 
 def _output_path(path, name: str) -> Path:
     """``path`` (str or os.PathLike) as a Path; else one line naming the argument."""
-    if not isinstance(path, (str, os.PathLike)) or isinstance(path, bytes):
-        raise PopvolError(f"write_image: {name} must be a file name (str or Path), not {type(path).__name__}")
-    return Path(path)
+    return Path(file_name(path, f"write_image: {name}"))

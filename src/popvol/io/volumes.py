@@ -66,13 +66,14 @@ def _vec3(value, source: str, field: str, default: float) -> np.ndarray:
     return check.vector(value, field, source)
 
 
-def read_npz(path, grid: str | None = None, signed: bool = False) -> VolumeData:
+def read_npz(path, grid: str | None = None, signed: bool = False, where: str = "") -> VolumeData:
     """Dense grid from .npz: array ``grid`` (default ``density``), optional ``voxel_size``
     (1 or 3 values) and ``world_of_ijk_min`` or ``origin`` (centre of voxel (0, 0, 0), the
-    scene's ``[medium] origin``; both only where they agree); defaults 1 and 0."""
+    scene's ``[medium] origin``; both only where they agree); defaults 1 and 0. ``where``: what
+    asked for the grid ("scene.toml: medium.g: "), put before a missing array's message."""
     path = Path(path)
     key = grid or "density"
-    with _npz_member(path, key) as z:
+    with _npz_member(path, key, where) as z:
         density = z[key]
         voxel = z["voxel_size"] if "voxel_size" in z.files else None
         centres = {k: _vec3(z[k], str(path), k, 0.0) for k in ("world_of_ijk_min", "origin") if k in z.files}
@@ -101,7 +102,7 @@ def _names(names, most: int = 12, width: int = 40) -> str:
 
 
 @contextlib.contextmanager
-def _npz_member(path: Path, key: str):
+def _npz_member(path: Path, key: str, where: str = ""):
     """The open archive of .npz ``path`` once array ``key``'s header is checked
     (:func:`_check_npz_member`); what the archive or NumPy rejects becomes a one-line PopvolError
     naming the file."""
@@ -109,7 +110,7 @@ def _npz_member(path: Path, key: str):
         # open the file ourselves: np.load leaks its handle when it rejects a file
         with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
             if key not in z.files:
-                raise PopvolError(f"{path}: no array named {check._show(key)}; arrays in the file: "
+                raise PopvolError(f"{where}{path}: no array named {check._show(key)}; arrays in the file: "
                                   f"{_names(z.files)}")
             _check_npz_member(z, key, path)
             yield z
@@ -240,12 +241,7 @@ def read_volume(path, grid: str | None = None, signed: bool = False, field: str 
                           f"file ({', '.join(SUFFIXES)})")
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        try:
-            return read_npz(path, grid, signed)
-        except PopvolError as e:            # which of the scene's grids asked for the missing array
-            if where and "no array named" in str(e):
-                raise PopvolError(f"{where}{e}") from None
-            raise
+        return read_npz(path, grid, signed, where)
     if suffix == ".vol":
         if grid not in (None, "density"):
             raise PopvolError(f"{path}: .vol files hold one unnamed grid; remove medium.grid = {grid!r}")

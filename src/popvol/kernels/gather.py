@@ -434,12 +434,8 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                     # it holds the entering light and 0 (cur), added toward the eye below
                 else:
                     touched_cur[p, q] = True
-                    j0 = j1 = j2 = d0 = d1 = d2 = 0.0
-                    alb = 0.0
-                    row = slot[rx, ry, rz]
-                    if row >= 0:
-                        j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated, pattern)
-                        alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
+                    j0, j1, j2, d0, d1, d2, alb = _cell_emission(lobes, slot, albedo, rx, ry, rz, w0, w1, w2, n_out,
+                                                                 separated, pattern)
                     path = 0.5 * ell if step == 0 else ell      # from the grid's face: half a slice
                     t = a_up = a_v = 0.0
                     for ch in range(n_out):
@@ -475,6 +471,17 @@ def _sweep(medium, lobes, grids, across_z, w, weight, out, norm, boundary, separ
                             out_sun[ix, iy, iz, ch] += f * f_sun * cur[3, p, q, ch]
         prev, cur = cur, prev
         touched_prev, touched_cur = touched_cur, touched_prev
+
+
+@nb.njit(inline="always", fastmath=True, cache=True)
+def _cell_emission(lobes, slot, albedo, rx, ry, rz, w0, w1, w2, n_out, separated, pattern):
+    """:func:`_emitted` toward (w0, w1, w2) of the voxel read at (rx, ry, rz) and its albedo:
+    (j0, j1, j2, d0, d1, d2, albedo), all 0 where it holds no lobes (``slot`` -1)."""
+    row = slot[rx, ry, rz]
+    if row < 0:
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, n_out, separated, pattern)
+    return j0, j1, j2, d0, d1, d2, albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
 
 
 @nb.njit(inline="always", fastmath=True, cache=True)
@@ -564,12 +571,8 @@ def _sweep_grey(medium, lobes, grids, across_z, w, weight, out, norm, boundary, 
                     m0 = m1 = m2 = 0.0
                 else:
                     touched_cur[p, q] = True
-                    j0 = j1 = j2 = d0 = d1 = d2 = 0.0
-                    alb = 0.0
-                    row = slot[rx, ry, rz]
-                    if row >= 0:
-                        j0, j1, j2, d0, d1, d2 = _emitted(lobes, row, w0, w1, w2, 3, separated, pattern)
-                        alb = albedo[0, 0, 0] if albedo.size == 1 else albedo[rx, ry, rz]
+                    j0, j1, j2, d0, d1, d2, alb = _cell_emission(lobes, slot, albedo, rx, ry, rz, w0, w1, w2, 3,
+                                                                 separated, pattern)
                     sig = scale_0 * density[rx, ry, rz]
                     e0, e1, e2 = sig * alb * albedo_rgb[0], sig * alb * albedo_rgb[1], sig * alb * albedo_rgb[2]
                     q0, q1, q2 = e0 * j0, e1 * j1, e2 * j2

@@ -362,8 +362,8 @@ class Engine:
         import tomli_w
         from ..io.files import folder_problem
         folder = Path(folder)
-        if folder_problem(folder):
-            raise PopvolError(f"save folder {folder} {folder_problem(folder)}")
+        if problem := folder_problem(folder):
+            raise PopvolError(f"save folder {folder} {problem}")
         f = self._full_frame(settings)
         for n in range(1, 100_000):
             png, toml = folder / f"popvol-view-{n:03d}.png", folder / f"popvol-view-{n:03d}.toml"
